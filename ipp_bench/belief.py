@@ -1,0 +1,144 @@
+"""Gaussian-process belief over the grid, updated by a Kalman filter (paper eqs. 2-3).
+
+The prior is a Matern 3/2 kernel over the cell centres in metres. Measurements are linear in the
+cells (``z = H f + noise``); each sensor row touches only the cells of one footprint, so the update
+works on those columns: with ``C = P[:, cells]`` and ``W = H[:, cells]`` the gain costs O(n m q)
+and the covariance downdate ``P -= A A^T`` (``A = C W^T L^-T``, ``L L^T = S``) is symmetric by
+construction. Pure numpy/scipy, float64.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import cho_solve, solve_triangular
+from scipy.spatial.distance import cdist
+
+
+def matern32(dist: np.ndarray, length_scale: float, signal_variance: float) -> np.ndarray:
+    """Matern nu = 3/2 kernel of distances ``dist`` [m]."""
+    r = np.sqrt(3.0) * np.asarray(dist, dtype=np.float64) / length_scale
+    return signal_variance * (1.0 + r) * np.exp(-r)
+
+
+def cell_centres(shape: tuple[int, int], resolution: float) -> np.ndarray:
+    """(rows*cols, 2) cell centres (x, y) [m] in row-major order."""
+    rows, cols = shape
+    r, c = np.divmod(np.arange(rows * cols), cols)
+    return np.stack([(c + 0.5) * resolution, (r + 0.5) * resolution], axis=1).astype(np.float64)
+
+
+def _as_cov(R: np.ndarray, m: int) -> np.ndarray:
+    R = np.asarray(R, dtype=np.float64)
+    if R.ndim == 1:
+        if R.shape != (m,):
+            raise ValueError(f"R has shape {R.shape}: expected ({m},) variances or ({m}, {m})")
+        return np.diag(R)
+    if R.shape != (m, m):
+        raise ValueError(f"R has shape {R.shape}: expected ({m},) variances or ({m}, {m})")
+    return R
+
+
+class GPBelief:
+    """Mean and covariance of the field at the cell centres.
+
+    Attributes:
+        mean: (n,) posterior mean, row-major cells.
+        cov: (n, n) posterior covariance.
+    """
+
+    def __init__(self, mean: np.ndarray, cov: np.ndarray, shape: tuple[int, int] | None = None):
+        self.mean = np.array(mean, dtype=np.float64)
+        self.cov = np.array(cov, dtype=np.float64)
+        n = self.mean.shape[0]
+        if self.mean.shape != (n,) or self.cov.shape != (n, n):
+            raise ValueError(f"mean {self.mean.shape} and cov {self.cov.shape} do not match: expected (n,) and (n, n)")
+        self.shape = shape if shape is not None else (1, n)
+
+    @classmethod
+    def from_grid(cls, shape: tuple[int, int] = (15, 15), resolution: float = 2.5,
+                  length_scale: float = 3.67, signal_variance: float = 1.82,
+                  prior_mean: float = 0.5) -> GPBelief:
+        """Prior over a rows x cols grid: mean ``prior_mean``, covariance the Matern 3/2 kernel."""
+        xy = cell_centres(shape, resolution)
+        cov = matern32(cdist(xy, xy), length_scale, signal_variance)
+        return cls(np.full(xy.shape[0], float(prior_mean)), cov, shape=tuple(shape))
+
+    @property
+    def n(self) -> int:
+        return self.mean.shape[0]
+
+    @property
+    def variance(self) -> np.ndarray:
+        """Posterior marginal variances, clipped at 0 against round-off."""
+        return np.maximum(np.diag(self.cov), 0.0)
+
+    def copy(self) -> GPBelief:
+        other = GPBelief.__new__(GPBelief)
+        other.mean = self.mean.copy()
+        other.cov = self.cov.copy()
+        other.shape = self.shape
+        return other
+
+    # -- the one Kalman gain, used by update and the predictions -------------------------------
+    def _downdate(self, cells: np.ndarray, W: np.ndarray, R: np.ndarray):
+        """Return (A, L, C) with A A^T the covariance reduction; C = P[:, cells] @ W.T."""
+        C = self.cov[:, cells] @ W.T  # (n, m) = P H^T
+        S = W @ C[cells, :] + _as_cov(R, W.shape[0])  # H P H^T + R
+        S = 0.5 * (S + S.T)
+        L = np.linalg.cholesky(S)
+        A = solve_triangular(L, C.T, lower=True).T  # C L^-T
+        return A, L, C
+
+    @staticmethod
+    def _local(H: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        H = np.atleast_2d(np.asarray(H, dtype=np.float64))
+        if H.shape[1] != n:
+            raise ValueError(f"H has shape {H.shape}: expected (m, {n})")
+        cells = np.flatnonzero(np.any(H != 0.0, axis=0))
+        return cells, H[:, cells]
+
+    # -- public API -----------------------------------------------------------------------------
+    def update(self, H: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
+        """Kalman update with measurements ``z = H f + v``, ``v ~ N(0, R)`` (paper eq. 3).
+
+        Args:
+            H: (m, n) measurement matrix.
+            z: (m,) measurements.
+            R: (m,) noise variances or (m, m) noise covariance.
+        """
+        cells, W = self._local(H, self.n)
+        self.update_local(cells, W, z, R)
+
+    def update_local(self, cells: np.ndarray, W: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
+        """``update`` with H given by its non-zero columns ``cells`` and their weights W (m, q)."""
+        z = np.asarray(z, dtype=np.float64).reshape(-1)
+        if z.shape[0] != W.shape[0]:
+            raise ValueError(f"z has {z.shape[0]} values but H has {W.shape[0]} rows")
+        A, L, C = self._downdate(cells, W, R)
+        innovation = z - W @ self.mean[cells]
+        self.mean += C @ cho_solve((L, True), innovation)
+        self.cov -= A @ A.T
+
+    def predict_cov(self, H: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Posterior covariance after measuring with (H, R); the belief is unchanged.
+
+        The covariance does not depend on the measured values, so look-ahead planners use this.
+        """
+        cells, W = self._local(H, self.n)
+        A, _, _ = self._downdate(cells, W, R)
+        return self.cov - A @ A.T
+
+    def predict_variance_local(self, cells: np.ndarray, W: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Posterior marginal variances (n,) after a measurement; O(n m) beyond the gain."""
+        A, _, _ = self._downdate(cells, W, R)
+        return np.maximum(np.diag(self.cov) - np.einsum("ij,ij->i", A, A), 0.0)
+
+    def predict_update_local(self, cells: np.ndarray, W: np.ndarray, R: np.ndarray) -> GPBelief:
+        """A copy whose covariance is the posterior after measuring; the mean is kept."""
+        other = self.copy()
+        A, _, _ = other._downdate(cells, W, R)
+        other.cov -= A @ A.T
+        return other
+
+
+__all__ = ["GPBelief", "matern32", "cell_centres"]

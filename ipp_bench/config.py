@@ -1,0 +1,259 @@
+"""Typed, frozen configuration of an IPP problem, validated at construction.
+
+Every field carries its unit in a comment. A bad value raises ``ValueError`` naming the field,
+the value and the valid range, so a wrong ``gym.make(..., **overrides)`` fails at once and says
+how to fix it. ``IPPConfig.replace(**flat)`` sets fields by name across the sections.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+FIELD_FAMILIES = ("bernoulli", "regions", "weed_patches")
+SAMPLING_MODES = ("grid", "uniform")
+
+
+def _fail(section: str, name: str, value: Any, valid: str) -> None:
+    raise ValueError(f"{section}.{name} = {value!r} is invalid: expected {valid}")
+
+
+def _finite(section: str, name: str, value: Any) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        _fail(section, name, value, "a finite number")
+    if not math.isfinite(v):
+        _fail(section, name, value, "a finite number")
+    return v
+
+
+def _positive(section: str, name: str, value: Any) -> None:
+    if _finite(section, name, value) <= 0:
+        _fail(section, name, value, "a finite number > 0")
+
+
+def _integer(section: str, name: str, value: Any, low: int, high: int | None = None) -> None:
+    ok = isinstance(value, (int,)) and not isinstance(value, bool)
+    if not ok or value < low or (high is not None and value > high):
+        rng = f">= {low}" if high is None else f"in [{low}, {high}]"
+        _fail(section, name, value, f"an integer {rng}")
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    """The mapped area: a rows x cols grid of square cells."""
+
+    rows: int = 15  # [cells] along y
+    cols: int = 15  # [cells] along x
+    resolution: float = 2.5  # [m] cell side
+
+    def __post_init__(self) -> None:
+        _integer("grid", "rows", self.rows, 2)
+        _integer("grid", "cols", self.cols, 2)
+        _positive("grid", "resolution", self.resolution)
+
+    @property
+    def n_cells(self) -> int:
+        return self.rows * self.cols
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        """(width along x, height along y) in metres."""
+        return self.cols * self.resolution, self.rows * self.resolution
+
+
+@dataclass(frozen=True)
+class GPConfig:
+    """Gaussian-process prior: Matern 3/2 over cell centres (paper Section IV-D)."""
+
+    length_scale: float = 3.67  # [m]
+    signal_variance: float = 1.82  # [field units^2]
+    prior_mean: float = 0.5  # [field units]
+
+    def __post_init__(self) -> None:
+        _positive("gp", "length_scale", self.length_scale)
+        _positive("gp", "signal_variance", self.signal_variance)
+        _finite("gp", "prior_mean", self.prior_mean)
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Downward square camera with altitude-dependent noise a (1 - exp(-b h))."""
+
+    fov_deg: float = 60.0  # [deg] full field of view of the square image
+    noise_a: float = 0.05  # [field units^2]
+    noise_b: float = 0.2  # [1/m]
+    binning_altitude: float = 10.0  # [m] above this, measurements average binning x binning cells
+    binning: int = 2  # [cells] block side of the coarse read-out
+
+    def __post_init__(self) -> None:
+        v = _finite("sensor", "fov_deg", self.fov_deg)
+        if not 0.0 < v < 180.0:
+            _fail("sensor", "fov_deg", self.fov_deg, "a number in (0, 180) degrees")
+        _positive("sensor", "noise_a", self.noise_a)
+        _positive("sensor", "noise_b", self.noise_b)
+        _positive("sensor", "binning_altitude", self.binning_altitude)
+        _integer("sensor", "binning", self.binning, 1)
+
+
+@dataclass(frozen=True)
+class GraphConfig:
+    """3D probabilistic roadmap: candidate measurement positions and their k-NN edges."""
+
+    altitudes: tuple[float, ...] = (8.0, 14.0)  # [m] flight levels, strictly increasing
+    k: int = 20  # [-] neighbours per node, k / len(altitudes) on each level
+    sampling: str = "grid"  # "grid": cell centres at every level; "uniform": random PRM
+    n_samples: int = 450  # [-] nodes in "uniform" mode, split equally over the levels
+    pe_dim: int = 32  # [-] Laplacian eigenvectors in the positional encoding
+    roadmap_seed: int = 0  # [-] seed of the "uniform" sampling (the roadmap is fixed per task)
+
+    def __post_init__(self) -> None:
+        alts = tuple(self.altitudes) if isinstance(self.altitudes, (list, tuple)) else None
+        if not alts:
+            _fail("graph", "altitudes", self.altitudes, "a non-empty sequence of altitudes > 0 [m]")
+        for a in alts:
+            if _finite("graph", "altitudes", a) <= 0:
+                _fail("graph", "altitudes", self.altitudes, "altitudes > 0 [m]")
+        if any(b <= a for a, b in zip(alts, alts[1:])):
+            _fail("graph", "altitudes", self.altitudes, "strictly increasing altitudes")
+        object.__setattr__(self, "altitudes", tuple(float(a) for a in alts))
+        _integer("graph", "k", self.k, len(alts))
+        if self.k % len(alts):
+            _fail("graph", "k", self.k, f"a multiple of the number of altitude levels ({len(alts)})")
+        if self.sampling not in SAMPLING_MODES:
+            _fail("graph", "sampling", self.sampling, f"one of {SAMPLING_MODES}")
+        _integer("graph", "n_samples", self.n_samples, 2 * len(alts))
+        _integer("graph", "pe_dim", self.pe_dim, 1)
+        _integer("graph", "roadmap_seed", self.roadmap_seed, 0)
+
+
+@dataclass(frozen=True)
+class MissionConfig:
+    """Budget, flight and evaluation settings of one mission."""
+
+    budget_s: float = 150.0  # [s] flight-time budget
+    speed: float = 2.0  # [m/s] cruise speed; travel time = length / speed
+    measurement_spacing: float = 7.5  # [m] travelled between measurements (0.2 map units)
+    start: tuple[float, float, float] | None = (2, 2, 14.0)  # (col, row [cells], altitude [m]); None or "random": random node
+    field: str = "bernoulli"  # ground-truth family
+    mu_th: float = 0.4  # [field units] ROI threshold
+    beta: float = 1.0  # [-] belief ROI: mu + beta sigma >= mu_th
+    report_times: tuple[float, ...] = (50.0, 100.0, 150.0, 200.0)  # [s] metrics read-out times
+    measure_at_start: bool = True  # take one measurement at the start position at t = 0
+
+    def __post_init__(self) -> None:
+        _positive("mission", "budget_s", self.budget_s)
+        _positive("mission", "speed", self.speed)
+        _positive("mission", "measurement_spacing", self.measurement_spacing)
+        if self.start == "random":
+            object.__setattr__(self, "start", None)
+        if self.start is not None:
+            if not isinstance(self.start, (list, tuple)) or len(self.start) != 3:
+                _fail("mission", "start", self.start, "None / 'random' or (col, row, altitude)")
+            for v in self.start:
+                _finite("mission", "start", v)
+            if self.start[2] <= 0:
+                _fail("mission", "start", self.start, "an altitude > 0 [m]")
+            object.__setattr__(self, "start", tuple(float(v) for v in self.start))
+        if self.field not in FIELD_FAMILIES:
+            _fail("mission", "field", self.field, f"one of {FIELD_FAMILIES}")
+        _finite("mission", "mu_th", self.mu_th)
+        if _finite("mission", "beta", self.beta) < 0:
+            _fail("mission", "beta", self.beta, "a finite number >= 0")
+        times = self.report_times
+        if not isinstance(times, (list, tuple)) or not times:
+            _fail("mission", "report_times", times, "a non-empty sequence of times > 0 [s]")
+        for t in times:
+            if _finite("mission", "report_times", t) <= 0:
+                _fail("mission", "report_times", times, "times > 0 [s]")
+        if any(b <= a for a, b in zip(times, times[1:])):
+            _fail("mission", "report_times", times, "strictly increasing times")
+        object.__setattr__(self, "report_times", tuple(float(t) for t in times))
+        if not isinstance(self.measure_at_start, bool):
+            _fail("mission", "measure_at_start", self.measure_at_start, "True or False")
+
+
+_SECTIONS = ("grid", "gp", "sensor", "graph", "mission")
+
+
+@dataclass(frozen=True)
+class IPPConfig:
+    """One IPP problem: the map, the prior, the camera, the roadmap and the mission."""
+
+    grid: GridConfig = field(default_factory=GridConfig)
+    gp: GPConfig = field(default_factory=GPConfig)
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    graph: GraphConfig = field(default_factory=GraphConfig)
+    mission: MissionConfig = field(default_factory=MissionConfig)
+
+    def __post_init__(self) -> None:
+        types = {"grid": GridConfig, "gp": GPConfig, "sensor": SensorConfig,
+                 "graph": GraphConfig, "mission": MissionConfig}
+        for name, cls in types.items():
+            value = getattr(self, name)
+            if isinstance(value, dict):
+                object.__setattr__(self, name, _build(cls, name, value))
+            elif not isinstance(value, cls):
+                _fail("config", name, value, f"a {cls.__name__} or a dict of its fields")
+        start = self.mission.start
+        if start is not None:
+            c, r, _ = start
+            if not (0 <= c <= self.grid.cols - 1 and 0 <= r <= self.grid.rows - 1):
+                _fail("mission", "start", start,
+                      f"(col in [0, {self.grid.cols - 1}], row in [0, {self.grid.rows - 1}], altitude)")
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> IPPConfig:
+        """Build from ``{"grid": {...}, "mission": {...}, ...}``; unknown keys are errors."""
+        unknown = set(data) - set(_SECTIONS)
+        if unknown:
+            raise ValueError(f"unknown config sections {sorted(unknown)}: valid are {list(_SECTIONS)}")
+        return cls(**{k: v for k, v in data.items()})
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        return {name: dataclasses.asdict(getattr(self, name)) for name in _SECTIONS}
+
+    def replace(self, **overrides: Any) -> IPPConfig:
+        """A copy with fields set by their (unique) names, e.g. ``replace(budget_s=200, rows=20)``."""
+        sections: dict[str, dict[str, Any]] = {}
+        owners = field_owners()
+        for name, value in overrides.items():
+            if name in _SECTIONS and isinstance(value, dict):
+                sections.setdefault(name, {}).update(value)
+                continue
+            if name not in owners:
+                raise ValueError(
+                    f"unknown config field {name!r}: valid fields are {sorted(owners)}")
+            sections.setdefault(owners[name], {})[name] = value
+        updated = {
+            s: dataclasses.replace(getattr(self, s), **_normalise(sections[s])) if s in sections
+            else getattr(self, s) for s in _SECTIONS}
+        return IPPConfig(**updated)
+
+
+def _normalise(values: dict[str, Any]) -> dict[str, Any]:
+    """TOML and JSON give lists where the dataclasses hold tuples."""
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+
+
+def _build(cls: type, section: str, values: dict[str, Any]) -> Any:
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(values) - names
+    if unknown:
+        raise ValueError(f"unknown fields {sorted(unknown)} in section {section!r}: valid are {sorted(names)}")
+    return cls(**_normalise(values))
+
+
+def field_owners() -> dict[str, str]:
+    """Map every config field name to the section that holds it."""
+    classes = {"grid": GridConfig, "gp": GPConfig, "sensor": SensorConfig,
+               "graph": GraphConfig, "mission": MissionConfig}
+    owners: dict[str, str] = {}
+    for section, cls in classes.items():
+        for f in dataclasses.fields(cls):
+            assert f.name not in owners, f"config field {f.name} is not unique"
+            owners[f.name] = section
+    return owners

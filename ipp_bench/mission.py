@@ -1,0 +1,216 @@
+"""A mission: ground truth + belief + camera + budget clock (the world state, no task logic).
+
+``fly_to(xyz)`` flies a straight line at the configured speed, measures every
+``measurement_spacing`` metres travelled (the distance carries over between legs) and on arrival,
+updates the belief, and records time-stamped metrics so that their values at any mission time
+(50 / 100 / 150 / 200 s) can be read afterwards. Measurements of one leg go into one batch Kalman
+update (equal to sequential updates), split at the report times so that ``metrics_at`` is exact.
+Graph environments, continuous planners and the MuJoCo deployment all drive a ``Mission``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from . import metrics as M
+from .belief import GPBelief
+from .config import IPPConfig
+from .sensor import Observation, Sensor, stack
+
+_TOL = 1e-9
+
+
+class BudgetExceededError(ValueError):
+    """A leg that the remaining flight-time budget cannot pay for."""
+
+
+@dataclass(frozen=True)
+class MetricRecord:
+    """Evaluation metrics (over the ground-truth ROI) at one mission time."""
+
+    time_s: float
+    trace_roi: float
+    rmse_roi: float
+    uncertainty_reduction_pct: float
+    rmse_reduction_pct: float
+    measurements: int
+    distance_m: float
+
+
+@dataclass(frozen=True)
+class Leg:
+    """What one ``fly_to`` did."""
+
+    duration_s: float
+    distance_m: float
+    measurements: int
+    arrival_time_s: float
+
+
+def cell_to_xyz(config: IPPConfig, col: float, row: float, altitude: float) -> np.ndarray:
+    """Position [m] above the centre of cell (col, row) at ``altitude``."""
+    res = config.grid.resolution
+    return np.array([(col + 0.5) * res, (row + 0.5) * res, altitude], dtype=np.float64)
+
+
+class Mission:
+    """World state of one episode.
+
+    Args:
+        config: the problem.
+        truth: (rows, cols) ground truth in [0, 1]; never shown to planners.
+        rng: generator of the sensor noise.
+        start_xyz: start position [m].
+        belief: initial belief (default: the GP prior of ``config.gp``).
+    """
+
+    def __init__(self, config: IPPConfig, truth: np.ndarray, rng: np.random.Generator,
+                 start_xyz, belief: GPBelief | None = None):
+        g = config.grid
+        truth = np.array(truth, dtype=np.float64)
+        if truth.shape != (g.rows, g.cols):
+            raise ValueError(f"truth has shape {truth.shape}: expected (rows, cols) = ({g.rows}, {g.cols})")
+        truth.flags.writeable = False
+        self.config = config
+        self.truth = truth
+        self._truth_flat = truth.reshape(-1)
+        self.rng = rng
+        self.sensor = Sensor(g, config.sensor)
+        self.belief = belief if belief is not None else GPBelief.from_grid(
+            (g.rows, g.cols), g.resolution, config.gp.length_scale, config.gp.signal_variance,
+            config.gp.prior_mean)
+        self.position = self._check_xyz(start_xyz)
+        self.time_s = 0.0
+        self.distance_m = 0.0
+        self.n_measurements = 0
+        self._since_measurement = 0.0
+        self.path: list[tuple[float, float, float, float]] = [(0.0, *self.position)]
+        self.measurement_log: list[tuple[float, float, float, float]] = []
+        self.eval_roi = M.truth_roi(truth, config.mission.mu_th)
+        self._prior_trace = M.trace_roi(self.belief.variance, self.eval_roi)
+        self._prior_rmse = M.rmse_roi(self.belief.mean, self._truth_flat, self.eval_roi)
+        self.history: list[MetricRecord] = [self._evaluate(0.0)]
+        if config.mission.measure_at_start:
+            self._measure([self.position], [0.0])
+
+    # -- clock --------------------------------------------------------------------------------
+    @property
+    def budget_s(self) -> float:
+        return self.config.mission.budget_s
+
+    @property
+    def remaining_s(self) -> float:
+        return max(self.budget_s - self.time_s, 0.0)
+
+    def leg_time(self, xyz) -> float:
+        """Flight time [s] of the straight line from here to ``xyz`` at the mission speed."""
+        return float(np.linalg.norm(np.asarray(xyz, dtype=np.float64) - self.position)) / self.config.mission.speed
+
+    def can_reach(self, xyz) -> bool:
+        return self.leg_time(xyz) <= self.remaining_s + _TOL
+
+    # -- flight -------------------------------------------------------------------------------
+    def _check_xyz(self, xyz) -> np.ndarray:
+        p = np.asarray(xyz, dtype=np.float64).reshape(-1)
+        width, height = self.config.grid.size_m
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"position {xyz!r} is invalid: expected three finite numbers (x, y, z) [m]")
+        if not (0 <= p[0] <= width and 0 <= p[1] <= height and p[2] > 0):
+            raise ValueError(
+                f"position {tuple(p)} is outside the map: valid is x in [0, {width}], "
+                f"y in [0, {height}], z > 0 [m]")
+        return p
+
+    def fly_to(self, xyz) -> Leg:
+        """Fly straight to ``xyz`` [m], measuring along the way and on arrival.
+
+        Raises:
+            BudgetExceededError: the leg takes longer than the remaining budget.
+            ValueError: ``xyz`` is off the map or equals the current position.
+        """
+        target = self._check_xyz(xyz)
+        delta = target - self.position
+        dist = float(np.linalg.norm(delta))
+        if dist <= 1e-6:
+            raise ValueError(f"fly_to({tuple(target)}): already there; a leg must move")
+        speed = self.config.mission.speed
+        duration = dist / speed
+        if duration > self.remaining_s + _TOL:
+            raise BudgetExceededError(
+                f"leg of {dist:.2f} m takes {duration:.2f} s but only {self.remaining_s:.2f} s of the "
+                f"{self.budget_s:.0f} s budget remain")
+        spacing = self.config.mission.measurement_spacing
+        s = np.arange(spacing - self._since_measurement, dist - _TOL, spacing)
+        s = np.append(s[s > _TOL], dist)
+        points = self.position + np.outer(s / dist, delta)
+        times = self.time_s + s / speed
+        self.time_s = min(self.time_s + duration, self.budget_s)
+        self.distance_m += dist
+        self.position = target
+        self._since_measurement = 0.0
+        self.path.append((self.time_s, *target))
+        n = self._measure(points, times)
+        return Leg(duration, dist, n, self.time_s)
+
+    def _measure(self, points, times) -> int:
+        """Read the camera at ``points`` (times ``times``) and assimilate, split at report times."""
+        report = np.asarray(self.config.mission.report_times)
+        groups = np.searchsorted(report, np.asarray(times) - _TOL, side="left")
+        count = 0
+        for g in np.unique(groups):
+            obs_list, zs, last_t = [], [], 0.0
+            for p, t in zip(np.asarray(points)[groups == g], np.asarray(times)[groups == g]):
+                obs, z = self.sensor.measure(p, self._truth_flat, self.rng)
+                self.measurement_log.append((float(t), *map(float, p)))
+                last_t = float(t)
+                if obs is not None:
+                    obs_list.append(obs)
+                    zs.append(z)
+            count += self.assimilate(obs_list, zs, last_t)
+        return count
+
+    def assimilate(self, observations: list[Observation], zs: list[np.ndarray], time_s: float) -> int:
+        """Fuse a batch of read-outs into the belief and record the metrics at ``time_s``.
+
+        Returns the number of scalar measurements fused.
+        """
+        if observations:
+            cells, W, var = stack(observations)
+            self.belief.update_local(cells, W, np.concatenate(zs), var)
+        m = sum(o.m for o in observations)
+        self.n_measurements += m
+        self.history.append(self._evaluate(float(time_s)))
+        return m
+
+    # -- metrics ------------------------------------------------------------------------------
+    def _evaluate(self, time_s: float) -> MetricRecord:
+        trace = M.trace_roi(self.belief.variance, self.eval_roi)
+        rmse = M.rmse_roi(self.belief.mean, self._truth_flat, self.eval_roi)
+        return MetricRecord(time_s, trace, rmse, M.reduction_pct(self._prior_trace, trace),
+                            M.reduction_pct(self._prior_rmse, rmse), self.n_measurements, self.distance_m)
+
+    def metrics(self) -> dict[str, float]:
+        """The latest evaluation metrics, with the clock."""
+        out = asdict(self.history[-1])
+        out.update(time_s=self.time_s, remaining_s=self.remaining_s, distance_m=self.distance_m)
+        return out
+
+    def metrics_at(self, time_s: float) -> dict[str, float]:
+        """Evaluation metrics as of mission time ``time_s`` (the last record at or before it)."""
+        rec = self.history[0]
+        for r in self.history:
+            if r.time_s <= time_s + _TOL:
+                rec = r
+            else:
+                break
+        out = asdict(rec)
+        out["time_s"] = float(time_s)
+        return out
+
+    def belief_roi(self) -> np.ndarray:
+        """The ROI a robot can compute: mean + beta sigma >= mu_th."""
+        m = self.config.mission
+        return M.belief_roi(self.belief.mean, self.belief.variance, m.mu_th, m.beta)
+

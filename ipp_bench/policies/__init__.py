@@ -1,0 +1,27 @@
+"""The attention policy of the paper: network, SB3 policy, checkpoints, training.
+
+- :mod:`~ipp_bench.policies.network`: the encoder / pointer-decoder network (torch only);
+- :mod:`~ipp_bench.policies.checkpoint`: the small checkpoint format and the shipped checkpoint;
+- :mod:`~ipp_bench.policies.sb3`: ``AttentionPolicy`` for ``sb3_contrib.MaskablePPO``;
+- :mod:`~ipp_bench.policies.train`: ``ipp-bench train`` (behaviour-cloning warm start + MaskablePPO).
+
+Importing this package needs torch only; the SB3 policy and the training code need the
+``[train]`` extra (stable-baselines3, sb3-contrib).
+"""
+
+try:
+    import torch  # noqa: F401
+except ImportError as err:  # pragma: no cover - depends on the installation
+    raise ImportError(
+        'ipp_bench.policies needs torch: install the training extra with pip install "ipp-bench[train]"'
+    ) from err
+
+from ipp_bench.policies.checkpoint import (
+    SHIPPED_CHECKPOINT,
+    CheckpointError,
+    load_checkpoint,
+    save_checkpoint,
+)
+from ipp_bench.policies.network import AttentionNet, NetConfig
+
+__all__ = ["AttentionNet", "NetConfig", "CheckpointError", "SHIPPED_CHECKPOINT", "load_checkpoint", "save_checkpoint"]

@@ -1,0 +1,139 @@
+"""3D probabilistic roadmap: candidate measurement positions and their k-NN edges.
+
+Nodes sit on the grid's cell centres at every altitude level (``sampling="grid"``: 15 x 15 x 2 =
+450 nodes), or are drawn uniformly over the map on each level (``sampling="uniform"``, a PRM).
+Each node links to its k nearest neighbours, k / n_levels from every level (paper Section IV-A),
+so that every decision can change altitude. Edge cost is travel time at the mission speed. The
+positional encoding holds the eigenvectors of the normalised graph Laplacian with the smallest
+non-zero eigenvalues, each signed so that its largest-magnitude entry is positive.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import eigh
+from scipy.spatial import cKDTree
+
+from .config import GraphConfig, GridConfig
+
+_CACHE: dict[tuple, "Roadmap"] = {}
+
+
+@dataclass(frozen=True, eq=False)
+class Roadmap:
+    """An immutable roadmap; build it with :meth:`Roadmap.build`.
+
+    Attributes:
+        positions: (N, 3) node positions [m].
+        levels: (N,) altitude level index of each node.
+        neighbours: (N, k) neighbour node indices, nearest first.
+        costs: (N, k) travel time [s] to each neighbour.
+        pos_encoding: (N, pe_dim) float32 Laplacian eigenvector encoding.
+    """
+
+    positions: np.ndarray
+    levels: np.ndarray
+    neighbours: np.ndarray
+    costs: np.ndarray
+    pos_encoding: np.ndarray
+    grid: GridConfig
+    graph: GraphConfig
+    speed: float
+
+    @property
+    def n_nodes(self) -> int:
+        return self.positions.shape[0]
+
+    @property
+    def k(self) -> int:
+        return self.neighbours.shape[1]
+
+    def nearest_node(self, xyz) -> int:
+        """Index of the node closest to ``xyz`` [m]."""
+        d = np.linalg.norm(self.positions - np.asarray(xyz, dtype=np.float64), axis=1)
+        return int(np.argmin(d))
+
+    @classmethod
+    def build(cls, grid: GridConfig, graph: GraphConfig, speed: float) -> Roadmap:
+        """Build (or fetch from the per-process cache) the roadmap of a configuration."""
+        key = (grid, graph, float(speed))
+        cached = _CACHE.get(key)
+        if cached is not None:
+            return cached
+        positions, levels = _sample_nodes(grid, graph)
+        neighbours, dist = _balanced_knn(positions, levels, graph)
+        pe = laplacian_encoding(neighbours, graph.pe_dim)
+        for a in (positions, levels, neighbours, dist, pe):
+            a.flags.writeable = False
+        costs = dist / float(speed)
+        costs.flags.writeable = False
+        roadmap = cls(positions, levels, neighbours, costs, pe, grid, graph, float(speed))
+        _CACHE[key] = roadmap
+        return roadmap
+
+
+def _sample_nodes(grid: GridConfig, graph: GraphConfig) -> tuple[np.ndarray, np.ndarray]:
+    width, height = grid.size_m
+    parts, levels = [], []
+    if graph.sampling == "grid":
+        r, c = np.divmod(np.arange(grid.n_cells), grid.cols)
+        xy = np.stack([(c + 0.5) * grid.resolution, (r + 0.5) * grid.resolution], axis=1)
+        per_level = [xy] * len(graph.altitudes)
+    else:
+        rng = np.random.default_rng(graph.roadmap_seed)
+        n = graph.n_samples // len(graph.altitudes)
+        per_level = [rng.uniform([0.0, 0.0], [width, height], size=(n, 2)) for _ in graph.altitudes]
+    for i, (alt, xy) in enumerate(zip(graph.altitudes, per_level)):
+        parts.append(np.column_stack([xy, np.full(len(xy), alt)]))
+        levels.append(np.full(len(xy), i, dtype=np.int64))
+    return np.concatenate(parts).astype(np.float64), np.concatenate(levels)
+
+
+def _balanced_knn(positions: np.ndarray, levels: np.ndarray, graph: GraphConfig):
+    """k nearest neighbours per node, k / n_levels from each level, ties broken by index."""
+    n_levels = len(graph.altitudes)
+    per = graph.k // n_levels
+    N = positions.shape[0]
+    idx_parts, dist_parts = [], []
+    for lvl in range(n_levels):
+        members = np.flatnonzero(levels == lvl)
+        if members.size < per + 1:
+            raise ValueError(
+                f"graph.k = {graph.k} needs at least {per + 1} nodes per level, level {lvl} has {members.size}")
+        q = min(members.size, per + 9)
+        dist, local = cKDTree(positions[members]).query(positions, k=q)
+        cand = members[local]
+        dist = np.where(cand == np.arange(N)[:, None], np.inf, dist)  # no self-loops
+        order = np.lexsort((cand, np.round(dist, 9)), axis=1)[:, :per]
+        idx_parts.append(np.take_along_axis(cand, order, 1))
+        dist_parts.append(np.take_along_axis(dist, order, 1))
+    idx = np.concatenate(idx_parts, axis=1)
+    dist = np.concatenate(dist_parts, axis=1)
+    order = np.lexsort((idx, np.round(dist, 9)), axis=1)
+    return np.take_along_axis(idx, order, 1).astype(np.int64), np.take_along_axis(dist, order, 1)
+
+
+def laplacian_encoding(neighbours: np.ndarray, dim: int) -> np.ndarray:
+    """(N, dim) eigenvectors of the normalised Laplacian of the symmetrised k-NN graph.
+
+    The trivial eigenvector is dropped; each vector is signed so that its first entry of largest
+    magnitude is positive, which fixes the encoding for a given roadmap. Missing dimensions (tiny
+    graphs) are zero.
+    """
+    N = neighbours.shape[0]
+    A = np.zeros((N, N))
+    A[np.repeat(np.arange(N), neighbours.shape[1]), neighbours.ravel()] = 1.0
+    A = np.maximum(A, A.T)
+    d = 1.0 / np.sqrt(A.sum(axis=1))
+    L = np.eye(N) - d[:, None] * A * d[None, :]
+    top = min(dim, N - 1)
+    _, vecs = eigh(L, subset_by_index=[1, top], driver="evr")
+    mag = np.abs(vecs)
+    first_max = np.argmax(mag >= mag.max(axis=0, keepdims=True) - 1e-9, axis=0)
+    signs = np.sign(vecs[first_max, np.arange(vecs.shape[1])])
+    vecs = vecs * np.where(signs == 0, 1.0, signs)
+    out = np.zeros((N, dim), dtype=np.float32)
+    out[:, :top] = vecs
+    return out

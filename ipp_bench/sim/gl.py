@@ -1,0 +1,83 @@
+"""Choice of MuJoCo's headless OpenGL backend; must run before ``import mujoco``.
+
+MuJoCo reads ``MUJOCO_GL`` once, when it is first imported, so this module is
+imported by ``ipp_bench/sim/__init__.py`` ahead of everything that imports
+mujoco. A value the user set is respected. Otherwise the first backend whose
+system library loads is chosen: EGL (headless, GPU or Mesa's llvmpipe), then
+OSMesa (pure software). Nothing is raised at import time: physics works without
+any OpenGL; :func:`require_gl` raises, naming the apt package, when a renderer
+is created and no backend can work.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+import sys
+
+# backend -> (library name for ctypes.util.find_library, apt packages that provide it)
+_BACKENDS: dict[str, tuple[str, str]] = {
+    "egl": ("EGL", "libegl1 libgl1-mesa-dri"),
+    "osmesa": ("OSMesa", "libosmesa6"),
+}
+
+INSTALL_HINT = (
+    "MuJoCo needs an OpenGL backend for off-screen rendering. Install one, e.g. "
+    "`apt-get install libegl1 libgl1-mesa-dri` (EGL; Mesa's llvmpipe renders without a GPU) "
+    "or `apt-get install libosmesa6` (OSMesa) and set MUJOCO_GL=egl or MUJOCO_GL=osmesa "
+    "before Python starts. The Python side needs `pip install \"ipp-bench[sim]\"` (mujoco, PyOpenGL)."
+)
+
+
+def _library_loads(name: str) -> bool:
+    path = ctypes.util.find_library(name)
+    candidates = [path] if path else []
+    candidates += [f"lib{name}.so.1", f"lib{name}.so.8", f"lib{name}.so"]
+    for candidate in candidates:
+        try:
+            ctypes.CDLL(candidate)
+        except OSError:
+            continue
+        return True
+    return False
+
+
+def select_backend() -> str | None:
+    """Sets ``MUJOCO_GL`` (and ``PYOPENGL_PLATFORM``) if unset and returns the backend.
+
+    Returns:
+        The backend name ("egl", "osmesa", or the user's own choice), or None when
+        no backend library was found (rendering will then fail with :data:`INSTALL_HINT`).
+    """
+    requested = os.environ.get("MUJOCO_GL", "").strip().lower()
+    if requested:
+        return requested
+    if "mujoco" in sys.modules:
+        # Too late to choose: mujoco has already bound its GL context class.
+        return None
+    for backend, (library, _apt) in _BACKENDS.items():
+        if _library_loads(library):
+            os.environ["MUJOCO_GL"] = backend
+            os.environ.setdefault("PYOPENGL_PLATFORM", backend)
+            return backend
+    return None
+
+
+def require_gl(error: BaseException | None = None) -> RuntimeError:
+    """Returns the error to raise when no off-screen GL context can be made.
+
+    Args:
+        error: the underlying failure, if any, whose text is appended.
+    """
+    backend = os.environ.get("MUJOCO_GL", "") or "<unset>"
+    library, apt = _BACKENDS.get(backend, ("EGL or OSMesa", "libegl1 libgl1-mesa-dri or libosmesa6"))
+    detail = f" ({type(error).__name__}: {error})" if error is not None else ""
+    return RuntimeError(
+        f"Cannot create an off-screen OpenGL context with MUJOCO_GL={backend}: "
+        f"lib{library} is missing or unusable; `apt-get install {apt}` provides it.{detail} "
+        + INSTALL_HINT
+    )
+
+
+BACKEND = select_backend()

@@ -1,0 +1,129 @@
+"""Off-screen rendering of a :class:`WeedScene`: the one module that owns a GL context.
+
+The context is created lazily, on the first :meth:`SceneRenderer.render`, in the
+process that renders (never at import, never in a parent that forks workers),
+and released by :meth:`SceneRenderer.close` (also a context manager). One
+context serves every camera and image size up to ``SceneConfig.max_render_size``:
+each call renders into a viewport of the requested size. When the scene's
+ground texture changes (:meth:`WeedScene.set_ground`), the texture is uploaded
+again before the next frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ipp_bench.sim import gl as _gl
+import mujoco
+
+from ipp_bench.sim.scene import WeedScene
+
+
+def chase_camera(scene: WeedScene, distance: float = 7.0, azimuth: float = -120.0,
+                 elevation: float = -28.0) -> mujoco.MjvCamera:
+    """A camera that follows the drone from behind and above (angles in degrees)."""
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+    cam.trackbodyid = scene.body_id
+    cam.distance, cam.azimuth, cam.elevation = distance, azimuth, elevation
+    return cam
+
+
+class SceneRenderer:
+    """Renders RGB frames of a scene from its downward camera or any :class:`mujoco.MjvCamera`.
+
+    Args:
+        scene: the scene to draw (its current ``data``).
+        max_geom: capacity of the abstract scene.
+    """
+
+    def __init__(self, scene: WeedScene, max_geom: int = 200) -> None:
+        self.scene = scene
+        self._max_geom = max_geom
+        self._gl = None
+        self._con = None
+        self._scn = None
+        self._opt = None
+        self._pert = None
+        self._texture_version = -1
+        self._down = mujoco.MjvCamera()
+        self._down.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self._down.fixedcamid = scene.camera_id
+
+    @property
+    def is_open(self) -> bool:
+        return self._con is not None
+
+    def _open(self) -> None:
+        model = self.scene.model
+        width, height = model.vis.global_.offwidth, model.vis.global_.offheight
+        try:
+            gl_context = mujoco.GLContext(width, height)
+            gl_context.make_current()
+        except Exception as err:  # any backend failure: explain which library / apt package
+            raise _gl.require_gl(err) from err
+        self._gl = gl_context
+        self._con = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100.value)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, self._con)
+        self._scn = mujoco.MjvScene(model, maxgeom=self._max_geom)
+        self._opt = mujoco.MjvOption()
+        self._pert = mujoco.MjvPerturb()
+        self._texture_version = self.scene.texture_version  # MjrContext uploaded the current texture
+
+    def render(self, camera: mujoco.MjvCamera | None = None, width: int = 128, height: int = 128,
+               out: np.ndarray | None = None) -> np.ndarray:
+        """Renders one RGB frame.
+
+        Args:
+            camera: None for the drone's downward camera, else e.g. :func:`chase_camera`.
+            width, height: image size [px], at most ``SceneConfig.max_render_size``.
+            out: optional (height, width, 3) uint8 array to fill.
+
+        Returns:
+            (height, width, 3) uint8, row 0 at the top of the image.
+        """
+        model = self.scene.model
+        if not (0 < width <= model.vis.global_.offwidth and 0 < height <= model.vis.global_.offheight):
+            raise ValueError(f"image size {width}x{height} outside 1..{model.vis.global_.offwidth}"
+                             f"x{model.vis.global_.offheight} (SceneConfig.max_render_size)")
+        if self._con is None:
+            self._open()
+        self._gl.make_current()
+        if self._texture_version != self.scene.texture_version:
+            mujoco.mjr_uploadTexture(model, self._con, self.scene.texture_id)
+            self._texture_version = self.scene.texture_version
+        cam = self._down if camera is None else camera
+        mujoco.mjv_updateScene(model, self.scene.data, self._opt, self._pert, cam,
+                               mujoco.mjtCatBit.mjCAT_ALL.value, self._scn)
+        rect = mujoco.MjrRect(0, 0, width, height)
+        mujoco.mjr_render(rect, self._scn, self._con)
+        buf = np.empty((height, width, 3), dtype=np.uint8)
+        mujoco.mjr_readPixels(buf, None, rect, self._con)
+        if out is None:
+            return buf[::-1].copy()
+        out[...] = buf[::-1]
+        return out
+
+    def close(self) -> None:
+        """Frees the GL resources (idempotent)."""
+        if self._con is not None:
+            try:
+                self._gl.make_current()
+                self._con.free()
+            finally:
+                self._con = None
+                self._scn = None
+                self._gl.free()
+                self._gl = None
+
+    def __enter__(self) -> "SceneRenderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: GL may already be gone
+            pass

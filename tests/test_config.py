@@ -1,0 +1,66 @@
+"""Every configuration field rejects a bad value with an error naming it and its valid range."""
+
+import dataclasses
+
+import pytest
+
+from ipp_bench.config import GPConfig, GraphConfig, GridConfig, IPPConfig, MissionConfig, SensorConfig
+
+BAD = [
+    (GridConfig, "rows", 1), (GridConfig, "rows", 2.5), (GridConfig, "cols", 0),
+    (GridConfig, "resolution", 0.0), (GridConfig, "resolution", float("nan")),
+    (GPConfig, "length_scale", -1.0), (GPConfig, "signal_variance", 0.0), (GPConfig, "prior_mean", float("inf")),
+    (SensorConfig, "fov_deg", 0.0), (SensorConfig, "fov_deg", 180.0), (SensorConfig, "noise_a", 0.0),
+    (SensorConfig, "noise_b", -0.2), (SensorConfig, "binning_altitude", 0.0), (SensorConfig, "binning", 0),
+    (GraphConfig, "altitudes", ()), (GraphConfig, "altitudes", (14.0, 8.0)), (GraphConfig, "altitudes", (0.0, 8.0)),
+    (GraphConfig, "altitudes", (8.0, 8.0)), (GraphConfig, "k", 1), (GraphConfig, "k", 21),
+    (GraphConfig, "sampling", "hex"), (GraphConfig, "n_samples", 3), (GraphConfig, "pe_dim", 0),
+    (GraphConfig, "roadmap_seed", -1),
+    (MissionConfig, "budget_s", 0.0), (MissionConfig, "speed", -2.0), (MissionConfig, "measurement_spacing", 0.0),
+    (MissionConfig, "start", (1, 2)), (MissionConfig, "start", (1, 2, 0.0)), (MissionConfig, "field", "gas"),
+    (MissionConfig, "mu_th", float("nan")), (MissionConfig, "beta", -1.0), (MissionConfig, "report_times", ()),
+    (MissionConfig, "report_times", (100.0, 50.0)), (MissionConfig, "measure_at_start", 1),
+]
+
+
+def test_every_field_is_covered():
+    covered = {(cls, name) for cls, name, _ in BAD}
+    for cls in (GridConfig, GPConfig, SensorConfig, GraphConfig, MissionConfig):
+        for f in dataclasses.fields(cls):
+            assert (cls, f.name) in covered, f"no bad-value test for {cls.__name__}.{f.name}"
+
+
+@pytest.mark.parametrize("cls, name, value", BAD, ids=[f"{c.__name__}.{n}={v!r}" for c, n, v in BAD])
+def test_bad_value_names_field_and_range(cls, name, value):
+    with pytest.raises(ValueError) as err:
+        cls(**{name: value})
+    msg = str(err.value)
+    assert name in msg and "expected" in msg
+
+
+def test_defaults_are_the_paper_values():
+    c = IPPConfig()
+    assert (c.grid.rows, c.grid.cols, c.grid.resolution) == (15, 15, 2.5)
+    assert (c.gp.length_scale, c.gp.signal_variance, c.gp.prior_mean) == (3.67, 1.82, 0.5)
+    assert (c.sensor.fov_deg, c.sensor.noise_a, c.sensor.noise_b) == (60.0, 0.05, 0.2)
+    assert c.graph.altitudes == (8.0, 14.0) and c.graph.k == 20
+    assert c.mission.start == (2.0, 2.0, 14.0) and c.mission.speed == 2.0 and c.mission.mu_th == 0.4
+
+
+def test_replace_by_flat_names_and_errors():
+    c = IPPConfig().replace(budget_s=200, rows=20, altitudes=[6.0, 10.0, 14.0], k=21)
+    assert c.mission.budget_s == 200 and c.grid.rows == 20 and c.graph.altitudes == (6.0, 10.0, 14.0)
+    with pytest.raises(ValueError, match="unknown config field 'budget'.*budget_s"):
+        IPPConfig().replace(budget=3)
+    with pytest.raises(ValueError, match="budget_s"):
+        IPPConfig().replace(budget_s=-1)
+    with pytest.raises(ValueError, match="mission.start"):
+        IPPConfig().replace(start=(20, 2, 14.0))  # off a 15 x 15 grid
+    assert IPPConfig().replace(start="random").mission.start is None
+
+
+def test_round_trip_dict():
+    c = IPPConfig().replace(field="regions", rows=17)
+    assert IPPConfig.from_dict(c.to_dict()) == c
+    with pytest.raises(ValueError, match="unknown config sections"):
+        IPPConfig.from_dict({"grids": {}})

@@ -1,0 +1,81 @@
+"""Mission clock, measurement spacing, budget refusal and time-stamped metrics."""
+
+import numpy as np
+import pytest
+
+from ipp_bench.config import IPPConfig
+from ipp_bench.mission import BudgetExceededError, Mission, cell_to_xyz
+
+
+def make(budget=100.0, **kw):
+    cfg = IPPConfig().replace(budget_s=budget, **kw)
+    truth = np.random.default_rng(0).random((15, 15))
+    return Mission(cfg, truth, np.random.default_rng(1), cell_to_xyz(cfg, 2, 2, 14.0))
+
+
+def test_start_measurement_and_prior_record():
+    m = make()
+    assert m.history[0].time_s == 0 and m.history[0].uncertainty_reduction_pct == 0
+    assert m.n_measurements == 9  # 6 x 6 clipped footprint at 14 m, 2 x 2 binned
+    assert make(measure_at_start=False).n_measurements == 0
+
+
+def test_measures_every_spacing_and_on_arrival():
+    m = make(measure_at_start=False)
+    start = m.position.copy()
+    leg = m.fly_to(start + [20.0, 0.0, 0.0])  # 20 m: at 7.5, 15 and arrival
+    assert [round(p[1] - start[0], 6) for p in m.measurement_log] == [7.5, 15.0, 20.0]
+    assert leg.duration_s == pytest.approx(10.0) and m.time_s == pytest.approx(10.0)
+    m.fly_to(m.position + [0.0, 10.0, 0.0])  # spacing restarts at arrival: at 7.5 and 10
+    assert len(m.measurement_log) == 5
+    np.testing.assert_allclose([t for t, *_ in m.measurement_log], [3.75, 7.5, 10.0, 13.75, 15.0])
+
+
+def test_budget_refusal_is_clear_and_loses_nothing():
+    m = make(budget=10.0)
+    before = (m.time_s, m.position.copy(), m.belief.cov.copy())
+    with pytest.raises(BudgetExceededError, match=r"takes 12.50 s but only 10.00 s"):
+        m.fly_to(m.position + [25.0, 0.0, 0.0])
+    assert m.time_s == before[0]
+    np.testing.assert_array_equal(m.position, before[1])
+    np.testing.assert_array_equal(m.belief.cov, before[2])
+    m.fly_to(m.position + [20.0, 0.0, 0.0])  # exactly the budget is fine
+    assert m.remaining_s == 0.0
+
+
+def test_invalid_targets():
+    m = make()
+    with pytest.raises(ValueError, match="outside the map"):
+        m.fly_to((50.0, 5.0, 8.0))
+    with pytest.raises(ValueError, match="already there"):
+        m.fly_to(m.position)
+
+
+def test_metrics_at_report_times_are_exact():
+    # report times split batches, so metrics_at(T) holds exactly the measurements taken up to T
+    m = make(budget=200.0, measure_at_start=False, report_times=(50.0, 80.0))
+    for delta in ([30.0, 0.0, 0.0], [0.0, 30.0, -6.0], [-30.0, 0.0, 0.0], [0.0, -30.0, 6.0],
+                  [25.0, 25.0, 0.0], [-20.0, 0.0, -6.0]):
+        m.fly_to(m.position + delta)
+    assert m.time_s > 80.0
+    for T in (50.0, 80.0):
+        expected = sum(m.sensor.observe(p).m for t, *p in m.measurement_log if t <= T)
+        assert m.metrics_at(T)["measurements"] == expected
+    red = [m.metrics_at(t)["uncertainty_reduction_pct"] for t in (0, 20, 40, 50, 60, m.time_s)]
+    assert all(b >= a - 1e-9 for a, b in zip(red, red[1:]))  # uncertainty never grows
+    assert m.metrics_at(1e9)["trace_roi"] == m.history[-1].trace_roi
+
+
+def test_batch_at_report_time_boundary():
+    m = make(budget=200.0, measure_at_start=False, report_times=(5.0, 10.0))
+    m.fly_to(m.position + [20.0, 0.0, 0.0])  # measurements at 3.75 s, 7.5 s, 10 s
+    rec = [round(r.time_s, 6) for r in m.history]
+    assert rec == [0.0, 3.75, 10.0]
+    assert m.metrics_at(5.0)["measurements"] == m.sensor.observe(m.measurement_log[0][1:]).m
+
+
+def test_same_seed_same_measurements():
+    a, b = make(), make()
+    for m in (a, b):
+        m.fly_to(m.position + [10.0, 5.0, -6.0])
+    np.testing.assert_array_equal(a.belief.mean, b.belief.mean)

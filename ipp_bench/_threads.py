@@ -26,6 +26,7 @@ def limit_blas_threads() -> None:
             raise ValueError
     except ValueError:
         raise ValueError(f"IPP_BENCH_BLAS_THREADS={raw!r} is invalid: expected an integer >= 1") from None
+    import scipy.linalg  # noqa: F401  (load scipy's BLAS so that the limit reaches it too)
     from threadpoolctl import ThreadpoolController
 
     controller = ThreadpoolController()

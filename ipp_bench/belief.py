@@ -10,7 +10,7 @@ construction. Pure numpy/scipy, float64.
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cho_solve, solve_triangular
+from scipy.linalg import blas, cho_solve, solve_triangular
 from scipy.spatial.distance import cdist
 
 
@@ -25,6 +25,39 @@ def cell_centres(shape: tuple[int, int], resolution: float) -> np.ndarray:
     rows, cols = shape
     r, c = np.divmod(np.arange(rows * cols), cols)
     return np.stack([(c + 0.5) * resolution, (r + 0.5) * resolution], axis=1).astype(np.float64)
+
+
+RESYMMETRISE_EVERY = 32  # updates between exact re-symmetrisations (round-off is ~1e-17 each)
+
+
+def gain_factor(cov: np.ndarray, cells: np.ndarray, W: np.ndarray, R: np.ndarray):
+    """The Kalman update of ``cov`` for H = W on columns ``cells``, in factored form.
+
+    Returns (A, L, C) with C = P H^T (n, m), L L^T = S = H P H^T + R and A = C L^-T, so that the
+    posterior covariance is ``P - A A^T`` and the gain is ``K = C S^-1``. Every covariance update
+    and prediction in ipp-bench goes through this one function.
+    """
+    C = cov[:, cells] @ W.T
+    S = W @ C[cells, :] + _as_cov(R, W.shape[0])
+    L = np.linalg.cholesky(0.5 * (S + S.T))
+    A = solve_triangular(L, C.T, lower=True, check_finite=False).T
+    return A, L, C
+
+
+def downdate_inplace(cov: np.ndarray, A: np.ndarray) -> None:
+    """``cov -= A A^T`` in place with one BLAS gemm (no n x n temporary; 4-5x faster at n = 2500)."""
+    if not cov.flags.c_contiguous:
+        raise ValueError("downdate_inplace needs a C-contiguous covariance")
+    A = np.asfortranarray(A)
+    blas.dgemm(-1.0, A, A, 1.0, cov.T, trans_b=True, overwrite_c=True)
+
+
+def symmetrise_inplace(cov: np.ndarray) -> None:
+    """Make ``cov`` exactly symmetric again (gemm leaves ~1e-17 asymmetry per update)."""
+    upper = np.triu_indices_from(cov, 1)
+    mean = 0.5 * (cov[upper] + cov.T[upper])
+    cov[upper] = mean
+    cov.T[upper] = mean
 
 
 def _as_cov(R: np.ndarray, m: int) -> np.ndarray:
@@ -53,6 +86,7 @@ class GPBelief:
         if self.mean.shape != (n,) or self.cov.shape != (n, n):
             raise ValueError(f"mean {self.mean.shape} and cov {self.cov.shape} do not match: expected (n,) and (n, n)")
         self.shape = shape if shape is not None else (1, n)
+        self._updates = 0
 
     @classmethod
     def from_grid(cls, shape: tuple[int, int] = (15, 15), resolution: float = 2.5,
@@ -77,17 +111,8 @@ class GPBelief:
         other.mean = self.mean.copy()
         other.cov = self.cov.copy()
         other.shape = self.shape
+        other._updates = self._updates
         return other
-
-    # -- the one Kalman gain, used by update and the predictions -------------------------------
-    def _downdate(self, cells: np.ndarray, W: np.ndarray, R: np.ndarray):
-        """Return (A, L, C) with A A^T the covariance reduction; C = P[:, cells] @ W.T."""
-        C = self.cov[:, cells] @ W.T  # (n, m) = P H^T
-        S = W @ C[cells, :] + _as_cov(R, W.shape[0])  # H P H^T + R
-        S = 0.5 * (S + S.T)
-        L = np.linalg.cholesky(S)
-        A = solve_triangular(L, C.T, lower=True).T  # C L^-T
-        return A, L, C
 
     @staticmethod
     def _local(H: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -114,10 +139,13 @@ class GPBelief:
         z = np.asarray(z, dtype=np.float64).reshape(-1)
         if z.shape[0] != W.shape[0]:
             raise ValueError(f"z has {z.shape[0]} values but H has {W.shape[0]} rows")
-        A, L, C = self._downdate(cells, W, R)
+        A, L, C = gain_factor(self.cov, cells, W, R)
         innovation = z - W @ self.mean[cells]
         self.mean += C @ cho_solve((L, True), innovation)
-        self.cov -= A @ A.T
+        downdate_inplace(self.cov, A)
+        self._updates += 1
+        if self._updates % RESYMMETRISE_EVERY == 0:
+            symmetrise_inplace(self.cov)
 
     def predict_cov(self, H: np.ndarray, R: np.ndarray) -> np.ndarray:
         """Posterior covariance after measuring with (H, R); the belief is unchanged.
@@ -125,19 +153,19 @@ class GPBelief:
         The covariance does not depend on the measured values, so look-ahead planners use this.
         """
         cells, W = self._local(H, self.n)
-        A, _, _ = self._downdate(cells, W, R)
+        A, _, _ = gain_factor(self.cov, cells, W, R)
         return self.cov - A @ A.T
 
     def predict_variance_local(self, cells: np.ndarray, W: np.ndarray, R: np.ndarray) -> np.ndarray:
         """Posterior marginal variances (n,) after a measurement; O(n m) beyond the gain."""
-        A, _, _ = self._downdate(cells, W, R)
+        A, _, _ = gain_factor(self.cov, cells, W, R)
         return np.maximum(np.diag(self.cov) - np.einsum("ij,ij->i", A, A), 0.0)
 
     def predict_update_local(self, cells: np.ndarray, W: np.ndarray, R: np.ndarray) -> GPBelief:
         """A copy whose covariance is the posterior after measuring; the mean is kept."""
         other = self.copy()
-        A, _, _ = other._downdate(cells, W, R)
-        other.cov -= A @ A.T
+        A, _, _ = gain_factor(other.cov, cells, W, R)
+        downdate_inplace(other.cov, A)
         return other
 
 

@@ -49,6 +49,16 @@ class Leg:
     arrival_time_s: float
 
 
+def leg_samples(length: float, since_last: float, spacing: float) -> np.ndarray:
+    """Distances along a leg of ``length`` [m] at which the camera is read.
+
+    Every ``spacing`` metres travelled, counting the ``since_last`` metres flown since the last
+    measurement before the leg, and once on arrival. Planners predict with the same rule.
+    """
+    s = np.arange(spacing - since_last, length - _TOL, spacing)
+    return np.append(s[s > _TOL], length)
+
+
 def cell_to_xyz(config: IPPConfig, col: float, row: float, altitude: float) -> np.ndarray:
     """Position [m] above the centre of cell (col, row) at ``altitude``."""
     res = config.grid.resolution
@@ -85,7 +95,7 @@ class Mission:
         self.time_s = 0.0
         self.distance_m = 0.0
         self.n_measurements = 0
-        self._since_measurement = 0.0
+        self._since_measurement = 0.0  # [m] flown since the last measurement (0: just measured)
         self.path: list[tuple[float, float, float, float]] = [(0.0, *self.position)]
         self.measurement_log: list[tuple[float, float, float, float]] = []
         self.eval_roi = M.truth_roi(truth, config.mission.mu_th)
@@ -141,9 +151,7 @@ class Mission:
             raise BudgetExceededError(
                 f"leg of {dist:.2f} m takes {duration:.2f} s but only {self.remaining_s:.2f} s of the "
                 f"{self.budget_s:.0f} s budget remain")
-        spacing = self.config.mission.measurement_spacing
-        s = np.arange(spacing - self._since_measurement, dist - _TOL, spacing)
-        s = np.append(s[s > _TOL], dist)
+        s = leg_samples(dist, self._since_measurement, self.config.mission.measurement_spacing)
         points = self.position + np.outer(s / dist, delta)
         times = self.time_s + s / speed
         self.time_s = min(self.time_s + duration, self.budget_s)

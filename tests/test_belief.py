@@ -112,3 +112,15 @@ def test_bad_shapes_raise_clear_errors():
         b.update(np.eye(9)[:2], np.ones(2), np.ones(3))
     with pytest.raises(ValueError, match="rows"):
         b.update(np.eye(9)[:2], np.ones(3), np.ones(2))
+
+
+def test_covariance_stays_symmetric_psd_over_many_updates():
+    from ipp_bench.belief import RESYMMETRISE_EVERY
+
+    rng = np.random.default_rng(11)
+    b = GPBelief.from_grid((8, 8))
+    for i in range(3 * RESYMMETRISE_EVERY):
+        cells = np.sort(rng.choice(64, size=4, replace=False))
+        b.update_local(cells, np.full((1, 4), 0.25), rng.normal(size=1), np.array([0.04]))
+    np.testing.assert_array_equal(b.cov, b.cov.T)  # just re-symmetrised
+    assert np.linalg.eigvalsh(b.cov).min() > -1e-12

@@ -93,6 +93,13 @@ def _onehot(index: torch.Tensor, n: int, dtype: torch.dtype) -> torch.Tensor:
     return F.one_hot(index.view(-1), n).to(dtype).unsqueeze(-1)
 
 
+def _same_rows(x: torch.Tensor) -> bool:
+    """True when every batch row of ``x`` equals the first (one roadmap for the whole batch)."""
+    if x.shape[0] == 1:
+        return False
+    return bool(torch.equal(x, x[:1].expand_as(x)))
+
+
 def _merge_heads(x: torch.Tensor) -> torch.Tensor:
     b, h, n, dh = x.shape
     return x.transpose(1, 2).reshape(b, n, h * dh)
@@ -174,16 +181,16 @@ class AttentionEncoder(nn.Module):
         delta = self._current_delta(node_features, current, budget)  # (B, 1, d)
         # Keys/values of all nodes with the projections folded into the embedding maps:
         # k = W^K (W^L x + b^L + W^PE pe + b^PE), plus W^K delta on the current node's row (same for v).
+        # A batch usually shares one roadmap: its positional encoding is then projected once.
+        pe = pos_encoding[:1] if _same_rows(pos_encoding) else pos_encoding
         d = self.cfg.embed_dim
-        w_emb = torch.cat([self.w_l.weight, self.w_pe.weight], dim=1)  # (d, F + P)
         b_emb = self.w_l.bias + self.w_pe.bias
-        x = torch.cat([node_features, pos_encoding], dim=-1)  # (B, N, F + P)
-        rows = torch.arange(b, device=x.device)
+        rows = torch.arange(b, device=node_features.device)
         kv = []
         for w in (lay.w_kv.weight[:d], lay.w_kv.weight[d:]):  # W^K, W^V (d, d)
-            t = F.linear(x, w @ w_emb, w @ b_emb)  # (B, N, d), contiguous
+            t = F.linear(node_features, w @ self.w_l.weight, w @ b_emb) + F.linear(pe, w @ self.w_pe.weight)
             t.index_put_((rows, current.view(b)), F.linear(delta[:, 0], w), accumulate=True)
-            kv.append(_split_heads(t, lay.n_heads))
+            kv.append(_split_heads(t, lay.n_heads))  # (B, H, N, d/H)
         k, v = kv
         # Queries: embeddings of [current, neighbours] only.
         idx = torch.cat([current.view(b, 1), neighbours], dim=1)  # (B, 1 + k)

@@ -14,8 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from ipp_bench.sim import gl as _gl  # noqa: F401  (MUJOCO_GL before mujoco)
-import mujoco
+from ipp_bench.sim.gl import mujoco
 
 from ipp_bench.sim.controller import CascadedController, ControllerGains, Leg
 from ipp_bench.sim.scene import WeedScene

@@ -1,8 +1,8 @@
-"""Choice of MuJoCo's headless OpenGL backend; must run before ``import mujoco``.
+"""Choice of MuJoCo's headless OpenGL backend, then the one ``import mujoco`` of the package.
 
-MuJoCo reads ``MUJOCO_GL`` once, when it is first imported, so this module is
-imported by ``ipp_bench/sim/__init__.py`` ahead of everything that imports
-mujoco. A value the user set is respected. Otherwise the first backend whose
+MuJoCo reads ``MUJOCO_GL`` once, when it is first imported, so every module of
+``ipp_bench.sim`` takes mujoco from here (``from ipp_bench.sim.gl import mujoco``)
+and ``ipp_bench/sim/__init__.py`` imports this module first. A value the user set is respected. Otherwise the first backend whose
 system library loads is chosen: EGL (headless, GPU or Mesa's llvmpipe), then
 OSMesa (pure software). Nothing is raised at import time: physics works without
 any OpenGL; :func:`require_gl` raises, naming the apt package, when a renderer
@@ -81,3 +81,11 @@ def require_gl(error: BaseException | None = None) -> RuntimeError:
 
 
 BACKEND = select_backend()
+
+try:
+    import mujoco  # noqa: E402  (deliberately after the backend choice)
+except ImportError as _err:  # pragma: no cover - depends on the installation
+    raise ImportError(
+        f'ipp_bench.sim needs MuJoCo ({_err}): pip install "ipp-bench[sim]"') from _err
+
+__all__ = ["BACKEND", "INSTALL_HINT", "mujoco", "require_gl", "select_backend"]

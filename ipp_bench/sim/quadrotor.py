@@ -15,8 +15,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ipp_bench.sim import gl as _gl  # noqa: F401  (MUJOCO_GL before mujoco)
-import mujoco
+from ipp_bench.sim.gl import mujoco
 
 GRAVITY = 9.81  # [m/s^2]
 

@@ -14,14 +14,14 @@ from __future__ import annotations
 import numpy as np
 
 from ipp_bench.sim import gl as _gl
-import mujoco
+from ipp_bench.sim.gl import mujoco
 
 from ipp_bench.sim.scene import WeedScene
 
 
-def chase_camera(scene: WeedScene, distance: float = 7.0, azimuth: float = -120.0,
-                 elevation: float = -28.0) -> mujoco.MjvCamera:
-    """A camera that follows the drone from behind and above (angles in degrees)."""
+def chase_camera(scene: WeedScene, distance: float = 6.5, azimuth: float = 45.0,
+                 elevation: float = -30.0) -> mujoco.MjvCamera:
+    """A camera that follows the drone from above and behind, looking along +x +y (angles in degrees)."""
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
     cam.trackbodyid = scene.body_id

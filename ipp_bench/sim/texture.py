@@ -38,40 +38,58 @@ class TexturePalette:
 
 def hsv_to_rgb(h: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Vectorised HSV (hue in degrees) to RGB in [0, 1], shape (..., 3)."""
-    h = np.mod(h, 360.0) / 60.0
-    i = np.floor(h).astype(np.int64) % 6
-    f = h - np.floor(h)
-    p = v * (1.0 - s)
-    q = v * (1.0 - s * f)
-    t = v * (1.0 - s * (1.0 - f))
-    r = np.choose(i, [v, q, p, p, t, v])
-    g = np.choose(i, [t, v, v, q, p, p])
-    b = np.choose(i, [p, p, t, v, v, q])
-    return np.stack([r, g, b], axis=-1)
+    h6 = np.mod(h, 360.0) / 60.0
+    out = []
+    for n in (5.0, 3.0, 1.0):  # r, g, b: v - v s clip(min(k, 4 - k), 0, 1), k = (n + h/60) mod 6
+        k = np.mod(n + h6, 6.0)
+        out.append(v - v * s * np.clip(np.minimum(k, 4.0 - k), 0.0, 1.0))
+    return np.stack(out, axis=-1)
+
+
+def _interp_matrix(n_out: int, n_in: int, wrap: bool) -> np.ndarray:
+    """(n_out, n_in) linear interpolation from ``n_in`` cell centres to ``n_out`` finer centres."""
+    x = (np.arange(n_out) + 0.5) * n_in / n_out - 0.5
+    i0 = np.floor(x).astype(np.int64)
+    f = (x - i0).astype(np.float32)
+    i1 = i0 + 1
+    if wrap:
+        i0, i1 = i0 % n_in, i1 % n_in
+    else:
+        i0, i1 = np.clip(i0, 0, n_in - 1), np.clip(i1, 0, n_in - 1)
+    m = np.zeros((n_out, n_in), dtype=np.float32)
+    rows = np.arange(n_out)
+    np.add.at(m, (rows, i0), 1.0 - f)
+    np.add.at(m, (rows, i1), f)
+    return m
+
+
+def _upsample(coarse: np.ndarray, shape: tuple[int, int], wrap: bool) -> np.ndarray:
+    """Separable bilinear upsampling of ``coarse`` to ``shape`` (two small matrix products)."""
+    ay = _interp_matrix(shape[0], coarse.shape[0], wrap)
+    ax = _interp_matrix(shape[1], coarse.shape[1], wrap)
+    return (ay @ coarse.astype(np.float32)) @ ax.T
 
 
 def _noise(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
-    """Zero-mean, unit-std Gaussian-smoothed white noise (sigma in texels).
+    """Zero-mean, unit-std Gaussian-smoothed white noise (sigma in texels), float32.
 
     Wide kernels are applied on a coarser grid and upsampled bilinearly (same look, ~10x faster).
     """
-    factor = max(1, int(sigma // 4))
+    factor = max(1, int(sigma // 2.5))
     while shape[0] % factor or shape[1] % factor:
         factor -= 1
     coarse = (shape[0] // factor, shape[1] // factor)
-    field = ndimage.gaussian_filter(rng.standard_normal(coarse), sigma=sigma / factor, mode="wrap")
+    field = ndimage.gaussian_filter(rng.standard_normal(coarse, dtype=np.float32), sigma=sigma / factor, mode="wrap")
     if factor > 1:
-        field = ndimage.zoom(field, factor, order=1, mode="grid-wrap", grid_mode=True)
-    return (field - field.mean()) / (field.std() + 1e-12)
+        field = _upsample(field, shape, wrap=True)
+    field -= field.mean()
+    field /= field.std() + 1e-12
+    return field
 
 
 def _upsample_field(field: np.ndarray, p: int) -> np.ndarray:
     """Bilinear interpolation of cell values at texel centres (edge cells held constant)."""
-    rows, cols = field.shape
-    y = (np.arange(rows * p) + 0.5) / p - 0.5
-    x = (np.arange(cols * p) + 0.5) / p - 0.5
-    yy, xx = np.meshgrid(y, x, indexing="ij")
-    return ndimage.map_coordinates(field, [yy, xx], order=1, mode="nearest")
+    return _upsample(field, (field.shape[0] * p, field.shape[1] * p), wrap=False)
 
 
 def _blocks(image: np.ndarray, rows: int, cols: int, p: int) -> np.ndarray:
@@ -82,27 +100,33 @@ def _unblocks(blocks: np.ndarray, rows: int, cols: int, p: int) -> np.ndarray:
     return blocks.reshape(rows, cols, p, p).transpose(0, 2, 1, 3).reshape(rows * p, cols * p)
 
 
-def weed_mask(field: np.ndarray, rng: np.random.Generator, texels_per_cell: int = 64) -> np.ndarray:
-    """Boolean weed mask with exactly ``round(field[r, c] * texels_per_cell**2)`` texels per cell."""
+def _check(field: np.ndarray, texels_per_cell: int) -> np.ndarray:
     field = np.asarray(field, dtype=np.float64)
     if field.ndim != 2 or np.any(field < 0.0) or np.any(field > 1.0):
         raise ValueError(f"field must be a 2D array with values in [0, 1], got shape {field.shape}")
     if texels_per_cell < 4:
         raise ValueError(f"texels_per_cell must be >= 4, got {texels_per_cell}")
+    return field
+
+
+def _mask_from_score(field: np.ndarray, score: np.ndarray, p: int) -> np.ndarray:
+    """The round(value * p^2) highest-scoring texels of every cell."""
     rows, cols = field.shape
-    p = texels_per_cell
-    shape = (rows * p, cols * p)
-    # plants: clumps (~0.25 cell) with leaves (~0.05 cell) on top, drawn towards weedy
-    # neighbours (the interpolated field) so patches do not end in straight cell borders
-    score = _noise(rng, shape, 0.09 * p) + 0.45 * _noise(rng, shape, 0.025 * p)
-    score += 3.0 * _upsample_field(field, p)
     blocks = _blocks(score, rows, cols, p)
-    order = np.argsort(blocks, axis=1, kind="stable")
+    order = np.argsort(blocks, axis=1)
+    n_weed = np.rint(field.ravel() * p * p).astype(np.int64)
     ranks = np.empty_like(order)
     np.put_along_axis(ranks, order, np.broadcast_to(np.arange(p * p), order.shape), axis=1)
-    n_weed = np.rint(field.ravel() * p * p).astype(np.int64)
-    mask = ranks >= (p * p - n_weed)[:, None]
-    return _unblocks(mask, rows, cols, p)
+    return _unblocks(ranks >= (p * p - n_weed)[:, None], rows, cols, p)
+
+
+def weed_mask(field: np.ndarray, rng: np.random.Generator, texels_per_cell: int = 64) -> np.ndarray:
+    """Boolean weed mask with exactly ``round(field[r, c] * texels_per_cell**2)`` texels per cell."""
+    field = _check(field, texels_per_cell)
+    p = texels_per_cell
+    shape = (field.shape[0] * p, field.shape[1] * p)
+    clumps, leaves = _noise(rng, shape, 0.09 * p), _noise(rng, shape, 0.025 * p)
+    return _mask_from_score(field, clumps + 0.45 * leaves + 3.0 * _upsample_field(field, p), p)
 
 
 def weed_texture(
@@ -122,41 +146,45 @@ def weed_texture(
     Returns:
         (rgb, mask): (rows*p, cols*p, 3) uint8 texture in grid-row order and the boolean weed mask.
     """
-    mask = weed_mask(field, rng, texels_per_cell)
-    shape = mask.shape
+    field = _check(field, texels_per_cell)
     p = texels_per_cell
     pal = palette
+    shape = (field.shape[0] * p, field.shape[1] * p)
+    # plants: clumps (~0.25 cell) with leaves (~0.05 cell) on top, drawn towards weedy
+    # neighbours (the interpolated field) so patches do not end in straight cell borders
+    clumps, leaves = _noise(rng, shape, 0.09 * p), _noise(rng, shape, 0.025 * p)
+    mask = _mask_from_score(field, clumps + 0.45 * leaves + 3.0 * _upsample_field(field, p), p)
 
-    # per-texel HSV of soil: moisture (large patches) and grain (fine)
-    moisture = _noise(rng, shape, 0.6 * p)
-    grain = rng.standard_normal(shape)
-    h = pal.soil_hsv[0] + pal.soil_jitter[0] * _noise(rng, shape, 0.3 * p)
+    moisture = _noise(rng, shape, 0.6 * p)  # large damp/dry patches of soil
+    patch = _noise(rng, shape, 0.15 * p)  # mid-scale: plant hue, clutter kind
+    clutter = _noise(rng, shape, 0.04 * p)  # small clumps of straw, moss, stones
+    grain = rng.standard_normal(shape, dtype=np.float32)
+
+    h = pal.soil_hsv[0] + pal.soil_jitter[0] * (0.7 * moisture - 0.7 * patch)
     s = pal.soil_hsv[1] + pal.soil_jitter[1] * (0.6 * moisture + 0.4 * grain)
     v = pal.soil_hsv[2] + pal.soil_jitter[2] * (-0.8 * moisture + 0.6 * grain)
 
-    # soil clutter: straw, moss and stones in small clumps (never on weeds)
-    clutter = _noise(rng, shape, 0.04 * p)
-    kind = _noise(rng, shape, 0.15 * p)
+    # soil clutter: straw, moss and stones (never on weeds)
     soil = ~mask
-    lo = np.quantile(clutter[soil], 1.0 - (pal.straw_fraction + pal.moss_fraction + pal.stone_fraction)) if soil.any() else np.inf
-    cluttered = soil & (clutter >= lo)
-    edges = np.quantile(kind, [pal.straw_fraction / (pal.straw_fraction + pal.moss_fraction + pal.stone_fraction),
-                               (pal.straw_fraction + pal.moss_fraction) / (pal.straw_fraction + pal.moss_fraction + pal.stone_fraction)])
-    for hsv, sel in (
-        (pal.straw_hsv, cluttered & (kind < edges[0])),
-        (pal.moss_hsv, cluttered & (kind >= edges[0]) & (kind < edges[1])),
-        (pal.stone_hsv, cluttered & (kind >= edges[1])),
-    ):
-        h[sel] = hsv[0] + 3.0 * grain[sel]
-        s[sel] = hsv[1] + 0.03 * grain[sel]
-        v[sel] = hsv[2] + 0.05 * grain[sel]
+    total = pal.straw_fraction + pal.moss_fraction + pal.stone_fraction
+    if soil.any() and total > 0:
+        cluttered = soil & (clutter >= np.quantile(clutter[soil], 1.0 - total))
+        edges = np.quantile(patch, [pal.straw_fraction / total, (pal.straw_fraction + pal.moss_fraction) / total])
+        for hsv, sel in (
+            (pal.straw_hsv, cluttered & (patch < edges[0])),
+            (pal.moss_hsv, cluttered & (patch >= edges[0]) & (patch < edges[1])),
+            (pal.stone_hsv, cluttered & (patch >= edges[1])),
+        ):
+            g = grain[sel]
+            h[sel] = hsv[0] + 3.0 * g
+            s[sel] = hsv[1] + 0.03 * g
+            v[sel] = hsv[2] + 0.05 * g
 
-    # weeds: hue per plant (mid-scale), shading of leaves (fine scale)
-    leaf = _noise(rng, shape, 0.02 * p)
-    plant = _noise(rng, shape, 0.12 * p)
-    h[mask] = pal.weed_hsv[0] + pal.weed_jitter[0] * plant[mask]
-    s[mask] = pal.weed_hsv[1] + pal.weed_jitter[1] * (0.5 * plant[mask] + 0.5 * grain[mask])
-    v[mask] = pal.weed_hsv[2] + pal.weed_jitter[2] * (0.8 * leaf[mask] + 0.3 * grain[mask])
+    # weeds: hue per plant (mid scale), shading of leaves (fine scale)
+    plant, leaf, g = patch[mask], leaves[mask], grain[mask]
+    h[mask] = pal.weed_hsv[0] + pal.weed_jitter[0] * plant
+    s[mask] = pal.weed_hsv[1] + pal.weed_jitter[1] * (0.5 * plant + 0.5 * g)
+    v[mask] = pal.weed_hsv[2] + pal.weed_jitter[2] * (0.8 * leaf + 0.3 * g)
 
     rgb = hsv_to_rgb(h, np.clip(s, 0.0, 1.0), np.clip(v, 0.04, 1.0))
-    return np.round(rgb * 255.0).astype(np.uint8), mask
+    return (rgb * 255.0 + 0.5).astype(np.uint8), mask

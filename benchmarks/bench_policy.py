@@ -1,0 +1,163 @@
+"""Speed of the attention policy: per-decision time and training throughput (printed, never pass/fail).
+
+Usage::
+
+    python benchmarks/bench_policy.py                  # everything, ~2 minutes on 2 cores
+    python benchmarks/bench_policy.py --skip-training  # decision times only
+    python benchmarks/bench_policy.py --mcts-decisions 5
+
+Figures:
+
+- per-decision time of the ``attention`` planner (observation -> action, one forward pass) on
+  Grid15Eval (450 nodes) and Grid20Eval (800 nodes), with 1 and 2 torch threads, median and p90;
+- the same for ``greedy`` and ``mcts`` in the same run (MCTS on a few decisions), and the ratio;
+- training throughput of ``ipp-bench train``'s PPO phase (environment steps per second, rollout
+  and update together) with the shipped checkpoint's settings, and of the warm-start fit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+
+import numpy as np
+
+
+def _decisions(planner_spec: str, task: str, n: int, seed: int = 0) -> np.ndarray:
+    """Seconds per ``act`` call over ``n`` decisions of real episodes."""
+    import gymnasium as gym
+
+    from ipp_bench.planners import make_planner
+    from ipp_bench.planners.base import RobotView
+
+    env = gym.make(task)
+    planner = make_planner(planner_spec)
+    times: list[float] = []
+    ep = 0
+    while len(times) < n:
+        obs, _ = env.reset(seed=seed + ep)
+        planner.reset(RobotView(env.unwrapped), seed + ep)
+        done = False
+        while not done and len(times) < n:
+            t = time.perf_counter()
+            a = planner.act(obs)
+            times.append(time.perf_counter() - t)
+            obs, _, term, trunc, _ = env.step(a)
+            done = term or trunc
+        ep += 1
+    return np.asarray(times)
+
+
+def _row(name: str, t: np.ndarray) -> dict:
+    return {"what": name, "n": int(t.size), "median_ms": float(np.median(t) * 1e3),
+            "p90_ms": float(np.percentile(t, 90) * 1e3)}
+
+
+def bench_decisions(args) -> list[dict]:
+    import torch
+
+    rows = []
+    for threads in (1, 2):
+        torch.set_num_threads(threads)
+        for task, nodes in (("ipp_bench/Grid15Eval-v0", 450), ("ipp_bench/Grid20Eval-v0", 800)):
+            _decisions("attention", task, 20)  # warm-up
+            t = _decisions("attention", task, args.decisions)
+            rows.append(_row(f"attention, {nodes} nodes, {threads} thread(s)", t))
+            print(_fmt(rows[-1]), flush=True)
+    torch.set_num_threads(args.threads)
+    t = _decisions("greedy", "ipp_bench/Grid15Eval-v0", args.decisions)
+    rows.append(_row("greedy, 450 nodes", t))
+    print(_fmt(rows[-1]), flush=True)
+    if args.mcts_decisions > 0:
+        try:
+            t = _decisions("mcts", "ipp_bench/Grid15Eval-v0", args.mcts_decisions)
+        except (ValueError, ImportError, ModuleNotFoundError) as err:
+            print(f"mcts not measured: {err}")
+        else:
+            rows.append(_row("mcts (default settings), 450 nodes", t))
+            print(_fmt(rows[-1]), flush=True)
+            att = next(r for r in rows if r["what"] == f"attention, 450 nodes, {args.threads} thread(s)")
+            print(f"MCTS / attention median per-decision time: {rows[-1]['median_ms'] / att['median_ms']:.0f}x")
+    return rows
+
+
+def bench_training(args) -> list[dict]:
+    import torch
+    from sb3_contrib import MaskablePPO
+
+    from ipp_bench.policies.network import AttentionNet
+    from ipp_bench.policies.sb3 import AttentionPolicy
+    from ipp_bench.policies.train import TrainArgs, _vec_env, collect_episodes, fit_bc, BCDataset, make_env, \
+        make_expert
+
+    torch.set_num_threads(args.threads)
+    cfg = TrainArgs(n_envs=5, n_steps=128, n_epochs=args.n_epochs, batch_size=128)
+    venv = _vec_env(cfg)
+    model = MaskablePPO(AttentionPolicy, venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
+                        n_epochs=cfg.n_epochs, learning_rate=2e-5, seed=0, device="cpu")
+    model.learn(cfg.n_envs * cfg.n_steps)  # warm-up
+    steps = cfg.n_envs * cfg.n_steps * args.ppo_rollouts
+    t = time.perf_counter()
+    model.learn(steps, reset_num_timesteps=False)
+    dt = time.perf_counter() - t
+    rows = [{"what": f"PPO env-steps/s (5 envs x 128 steps, {cfg.n_epochs} epochs, batch 128)",
+             "steps": steps, "seconds": dt, "steps_per_s": steps / dt}]
+    print(f"{rows[-1]['what']}: {rows[-1]['steps_per_s']:.1f} over {steps} steps", flush=True)
+
+    env = make_env(cfg.task)
+    data = BCDataset()
+    rng = np.random.default_rng(0)
+    t = time.perf_counter()
+    collect_episodes(env, make_expert("greedy"), None, 5, 1.0, data, 0.99, rng, 0, torch.device("cpu"))
+    dt = time.perf_counter() - t
+    rows.append({"what": "warm start: greedy-labelled env-steps/s", "steps": len(data), "seconds": dt,
+                 "steps_per_s": len(data) / dt})
+    print(f"{rows[-1]['what']}: {rows[-1]['steps_per_s']:.1f}", flush=True)
+    net = AttentionNet()
+    t = time.perf_counter()
+    fit_bc(net, data, 1, 3e-4, 128, rng, torch.device("cpu"))
+    dt = time.perf_counter() - t
+    rows.append({"what": "warm start: fit samples/s (one epoch, batch 128)", "steps": len(data), "seconds": dt,
+                 "steps_per_s": len(data) / dt})
+    print(f"{rows[-1]['what']}: {rows[-1]['steps_per_s']:.1f}", flush=True)
+    venv.close()
+    return rows
+
+
+def _fmt(r: dict) -> str:
+    return f"{r['what']}: median {r['median_ms']:.2f} ms, p90 {r['p90_ms']:.2f} ms over {r['n']} decisions"
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--decisions", type=int, default=300, help="decisions timed per setting")
+    p.add_argument("--mcts-decisions", type=int, default=5, help="MCTS decisions timed (0: skip)")
+    p.add_argument("--threads", type=int, default=2, help="torch threads for the training figures")
+    p.add_argument("--n-epochs", type=int, default=4, help="PPO epochs in the throughput figure")
+    p.add_argument("--ppo-rollouts", type=int, default=4, help="PPO rollouts (of 640 steps) timed")
+    p.add_argument("--skip-training", action="store_true")
+    p.add_argument("--json", help="also write the figures to this file")
+    args = p.parse_args()
+
+    from ipp_bench._threads import limit_blas_threads
+
+    limit_blas_threads()
+    import torch
+
+    print(f"python {platform.python_version()}, torch {torch.__version__}, {platform.processor() or platform.machine()}, "
+          f"{len(os.sched_getaffinity(0))} CPUs available")
+    rows = bench_decisions(args)
+    if not args.skip_training:
+        rows += bench_training(args)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,204 @@
+"""``ipp-bench``: the command line of the suite.
+
+Subcommands::
+
+    ipp-bench tasks                                     registered tasks and their tags
+    ipp-bench evaluate --task T --planner P --seed S    one episode, its metrics (--render out.png)
+    ipp-bench leaderboard [--quick] [--out DIR] ...     every planner on every benchmark task
+    ipp-bench train ...                                 train the attention policy   (extra [train])
+    ipp-bench demo ...                                  MuJoCo deployment demo       (extra [sim])
+
+A subcommand's module is imported only when that subcommand runs, so ``ipp-bench leaderboard``
+never imports torch or mujoco for itself (a planner that needs torch imports it when it is built).
+Bad arguments (unknown task or planner, a bad planner setting, results of other arguments in
+``--out``) end with the library's message and exit status 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import shlex
+import sys
+from collections.abc import Sequence
+
+from . import __version__
+
+EXIT_USAGE = 2
+
+# subcommand -> (module, add_arguments, run, extra)
+_DELEGATED = {
+    "train": ("ipp_bench.policies.train", "add_train_arguments", "run_train", "train",
+              "train the attention policy (behaviour cloning warm start + MaskablePPO)"),
+    "demo": ("ipp_bench.sim.demo", "add_demo_arguments", "run_demo", "sim",
+             "fly a planner in the MuJoCo deployment and render it"),
+}
+
+
+def _error(message: str) -> int:
+    print(f"ipp-bench: error: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+# --------------------------------------------------------------------------------------------------
+# parser
+# --------------------------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ipp-bench", description="Benchmark suite for adaptive 3D informative path planning with UAVs.")
+    parser.add_argument("--version", action="version", version=f"ipp-bench {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    sub.add_parser("tasks", help="list the registered tasks and their tags",
+                   description="List the registered tasks with their tags.")
+
+    ev = sub.add_parser("evaluate", help="run one episode and print its metrics",
+                        description="Run one episode of one planner on one task and print its metrics.")
+    ev.add_argument("--task", required=True, help="task id, e.g. ipp_bench/Grid15Eval-v0 (prefix optional)")
+    ev.add_argument("--planner", required=True, help="planner spec, e.g. greedy or mcts:simulations=50")
+    ev.add_argument("--seed", type=int, default=0, help="episode seed (field, start, sensor noise); default 0")
+    ev.add_argument("--render", metavar="PNG", help="save the final render of the episode to this PNG")
+    ev.add_argument("--env", metavar="KEY=VALUE", action="append", default=[],
+                    help="override a task config field, e.g. --env budget_s=100 (repeatable)")
+    ev.add_argument("--json", action="store_true", help="print the metrics as JSON")
+
+    lb = sub.add_parser("leaderboard", help="every planner on every benchmark task, with report",
+                        description="Run the leaderboard: every planner on every task over the same episode "
+                                    "seeds; writes results.csv, leaderboard.md, plots and run.json to --out. "
+                                    "Resumable: rerun the same command to complete an interrupted run.")
+    lb.add_argument("--tasks", nargs="+", metavar="TASK", help="task ids (default: all tagged 'benchmark')")
+    lb.add_argument("--planners", nargs="+", metavar="SPEC",
+                    help="planner specs such as greedy or mcts:simulations=50 (default: all registered)")
+    lb.add_argument("--episodes", type=int, help="episodes per task and planner (default 20; --quick: 4)")
+    lb.add_argument("--seed", type=int, default=0, help="base seed the episode seeds derive from (default 0)")
+    lb.add_argument("--workers", type=int, help="parallel workers (default: the CPUs available)")
+    lb.add_argument("--backend", choices=("serial", "process", "ray"),
+                    help="where episodes run (default: process with more than one worker, else serial)")
+    lb.add_argument("--address", help="Ray cluster address for --backend ray (default: RAY_ADDRESS, else local)")
+    lb.add_argument("--out", default="leaderboard", metavar="DIR", help="output folder (default ./leaderboard)")
+    lb.add_argument("--quick", action="store_true",
+                    help="few episodes and cheaper look-ahead settings: minutes on 2 cores")
+    lb.add_argument("--env", metavar="KEY=VALUE", action="append", default=[],
+                    help="override a config field of every task, e.g. --env budget_s=100 (repeatable)")
+    progress = lb.add_mutually_exclusive_group()
+    progress.add_argument("--progress", dest="progress", action="store_true", default=None,
+                          help="always show a progress bar")
+    progress.add_argument("--no-progress", dest="progress", action="store_false",
+                          help="plain lines instead of a progress bar (the default off a terminal)")
+
+    for name, (_, _, _, extra, text) in _DELEGATED.items():
+        sub.add_parser(name, help=f"{text} (needs ipp-bench[{extra}]; see 'ipp-bench {name} --help')",
+                       add_help=False)
+    return parser
+
+
+# --------------------------------------------------------------------------------------------------
+# subcommands
+# --------------------------------------------------------------------------------------------------
+def cmd_tasks(args: argparse.Namespace) -> int:
+    from .envs import TASKS
+
+    width = max(len(t) for t in TASKS) if TASKS else 0
+    for task_id, spec in TASKS.items():
+        mission, grid = spec.config.mission, spec.config.grid
+        print(f"{task_id:<{width}}  tags: {', '.join(spec.tags) or '-':<10}  "
+              f"{grid.rows}x{grid.cols} cells, {mission.field} fields, budget {mission.budget_s:g} s")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from .eval.leaderboard import canonical_spec, parse_env_overrides, report_times, resolve_task
+    from .planners import make_planner
+
+    try:
+        task = resolve_task(args.task)
+        env = parse_env_overrides(args.env)
+        report_times(task, env)  # validates the overrides
+        spec = canonical_spec(args.planner)
+        make_planner(spec)  # a planner that cannot be built here fails now, with its message
+    except (ValueError, ImportError) as err:
+        return _error(str(err))
+    from .eval.runner import run_episode
+
+    result = run_episode(task, spec, args.seed, render_path=args.render, **env)
+    if args.json:
+        out = {k: v for k, v in result.to_dict().items() if k != "decision_times_s"}
+        out.update(decision_time_mean_s=result.decision_time_mean_s, decision_time_max_s=result.decision_time_max_s)
+        print(json.dumps(out, indent=2))
+        return 0
+    print(f"{task}  planner {spec}  seed {args.seed}")
+    print(f"{'time [s]':>9} {'ROI trace':>11} {'ROI RMSE':>9} {'uncertainty red.':>17} {'RMSE red.':>10}")
+    for r in result.report:
+        print(f"{r['time_s']:>9g} {r['trace_roi']:>11.4g} {r['rmse_roi']:>9.4f} "
+              f"{r['uncertainty_reduction_pct']:>16.1f}% {r['rmse_reduction_pct']:>9.1f}%")
+    print(f"decisions {result.decisions}, decision time mean {result.decision_time_mean_s:.4g} s, "
+          f"max {result.decision_time_max_s:.4g} s, episode wall time {result.episode_wall_s:.2f} s")
+    if args.render:
+        print(f"render saved to {args.render}")
+    return 0
+
+
+def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
+    from .eval.executors import check_executor_args, default_backend
+    from .eval.leaderboard import (ResultsMismatchError, describe_quick, make_plan, parse_env_overrides,
+                                   run_leaderboard)
+
+    if args.quick:
+        print(describe_quick(), flush=True)
+    try:
+        plan = make_plan(args.tasks, args.planners, args.episodes, args.seed, args.quick,
+                         parse_env_overrides(args.env), log=lambda m: print(m, flush=True))
+        backend = args.backend or ("ray" if args.address else default_backend(args.workers))
+        check_executor_args(backend, args.workers, args.address)  # e.g. the ray extra, before anything runs
+    except (ValueError, ImportError) as err:
+        return _error(str(err))
+    print(f"tasks: {', '.join(plan.tasks)}\nplanners: {', '.join(plan.planners)}\n"
+          f"episodes: {plan.episodes} per task and planner, seed {plan.seed}"
+          + (f", env overrides {plan.env_overrides}" if plan.env_overrides else ""), flush=True)
+    command = "ipp-bench " + " ".join(shlex.quote(a) for a in argv)
+    try:
+        summary = run_leaderboard(plan, args.out, backend=backend, workers=args.workers, address=args.address,
+                                  progress=args.progress, command=command, log=lambda m: print(m, flush=True))
+    except ResultsMismatchError as err:
+        return _error(str(err))
+    except ImportError as err:  # the ray extra
+        return _error(str(err))
+    print(f"done in {summary.wall_s:.1f} s ({summary.ran} episodes run, {summary.skipped} resumed); wrote:")
+    for path in summary.files:
+        print(f"  {path}")
+    return 0
+
+
+def _run_delegated(name: str, argv: Sequence[str]) -> int:
+    module_name, add_name, run_name, extra, text = _DELEGATED[name]
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as err:
+        return _error(f"'ipp-bench {name}' is unavailable ({err}); it needs the {extra} extra: "
+                      f'pip install "ipp-bench[{extra}]"')
+    parser = argparse.ArgumentParser(prog=f"ipp-bench {name}", description=text)
+    getattr(module, add_name)(parser)
+    args = parser.parse_args(list(argv))
+    return int(getattr(module, run_name)(args) or 0)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``ipp-bench`` console script; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in _DELEGATED:  # their parsers live in their (heavy) modules
+        return _run_delegated(argv[0], argv[1:])
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command == "tasks":
+        return cmd_tasks(args)
+    if args.command == "evaluate":
+        return cmd_evaluate(args)
+    if args.command == "leaderboard":
+        return cmd_leaderboard(args, argv)
+    parser.error(f"unknown command {args.command!r}")  # unreachable: argparse checks the choices
+    return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

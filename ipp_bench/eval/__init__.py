@@ -1,0 +1,1 @@
+"""Evaluation: the episode runner, the leaderboard and its executors."""

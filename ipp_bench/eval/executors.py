@@ -1,0 +1,217 @@
+"""Where the leaderboard's episodes run: in this process, in a local process pool, or on Ray.
+
+All three take a picklable module-level function and a list of jobs and yield ``(job, result)``
+pairs as jobs finish (in completion order, which the leaderboard does not rely on). Each worker
+process runs numpy's BLAS on one thread (:func:`ipp_bench._threads.limit_blas_threads`), so an
+episode's numbers are the same whichever backend or worker count runs it.
+
+- ``serial``: one job after another in this process.
+- ``process``: :class:`concurrent.futures.ProcessPoolExecutor` with the ``forkserver`` start
+  method (``spawn`` where there is none), never ``fork`` (a forked BLAS or Ray thread pool can hang).
+- ``ray``: one Ray task per job (``num_cpus=1``) on the cluster at ``address`` /
+  ``RAY_ADDRESS``, on an already initialised Ray, or on a local Ray started here. Needs
+  ``pip install "ipp-bench[ray]"``; on a remote cluster ipp-bench must be installed there too.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from typing import Any, TypeVar
+
+from .._threads import limit_blas_threads
+
+BACKENDS = ("serial", "process", "ray")
+
+J = TypeVar("J")
+R = TypeVar("R")
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on (the affinity mask where the OS has one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
+
+
+def init_worker() -> None:
+    """Load the BLAS libraries the core uses, then limit them to one thread.
+
+    ``limit_blas_threads`` can only limit libraries already loaded (and applies once per process),
+    so numpy and scipy.linalg (each with its own OpenBLAS) are imported first: called in a fresh
+    worker before they were loaded, it left scipy's BLAS at 2 threads and greedy 25x slower (measured).
+    """
+    import numpy  # noqa: F401
+    import scipy.linalg  # noqa: F401
+
+    limit_blas_threads()
+
+
+def _call_in_worker(fn: Callable[[J], R], job: J) -> R:
+    init_worker()
+    return fn(job)
+
+
+class SerialExecutor:
+    """Runs the jobs one after another in this process."""
+
+    name = "serial"
+    workers = 1
+
+    def imap_unordered(self, fn: Callable[[J], R], jobs: Sequence[J]) -> Iterator[tuple[J, R]]:
+        init_worker()
+        for job in jobs:
+            yield job, fn(job)
+
+    def close(self) -> None:
+        pass
+
+    def describe(self) -> str:
+        return "serial (this process)"
+
+
+class ProcessExecutor:
+    """A pool of ``workers`` processes (``forkserver``, else ``spawn``); one BLAS thread each."""
+
+    name = "process"
+
+    def __init__(self, workers: int):
+        if workers < 1:
+            raise ValueError(f"workers = {workers} is invalid: expected an integer >= 1")
+        self.workers = workers
+        methods = multiprocessing.get_all_start_methods()
+        self.start_method = "forkserver" if "forkserver" in methods else "spawn"
+        self._pool: ProcessPoolExecutor | None = None
+
+    def imap_unordered(self, fn: Callable[[J], R], jobs: Sequence[J]) -> Iterator[tuple[J, R]]:
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(max_workers=self.workers,
+                                             mp_context=multiprocessing.get_context(self.start_method),
+                                             initializer=init_worker)
+        pending = {self._pool.submit(fn, job): job for job in jobs}
+        try:
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    job = pending.pop(fut)
+                    yield job, fut.result()
+        finally:
+            for fut in pending:
+                fut.cancel()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+    def describe(self) -> str:
+        return f"process pool, {self.workers} workers ({self.start_method})"
+
+
+def _import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise ImportError('the ray backend needs Ray: pip install "ipp-bench[ray]"') from None
+    return ray
+
+
+class RayExecutor:
+    """One Ray task per job on a Ray cluster.
+
+    Args:
+        workers: CPUs of the local Ray started when no cluster is given (ignored otherwise: the
+            cluster's resources decide how many tasks run at once).
+        address: cluster address; defaults to ``RAY_ADDRESS``. Without either, an already
+            initialised Ray is used, else a local one is started (and shut down by :meth:`close`).
+    """
+
+    name = "ray"
+
+    def __init__(self, workers: int, address: str | None = None):
+        self._ray = _import_ray()
+        ray = self._ray
+        self.workers = workers
+        self.address = address or os.environ.get("RAY_ADDRESS") or None
+        self._owns = False
+        if ray.is_initialized():
+            self.where = "the Ray already initialised in this process"
+        elif self.address:
+            ray.init(address=self.address, include_dashboard=False, log_to_driver=False)
+            self._owns = True
+            self.where = f"the Ray cluster at {self.address}"
+        else:
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+            self._owns = True
+            self.where = f"a local Ray with {workers} CPUs"
+        self._remote = ray.remote(num_cpus=1, max_retries=0)(_call_in_worker)
+
+    def imap_unordered(self, fn: Callable[[J], R], jobs: Sequence[J]) -> Iterator[tuple[J, R]]:
+        ray = self._ray
+        refs = {self._remote.remote(fn, job): job for job in jobs}
+        try:
+            while refs:
+                done, _ = ray.wait(list(refs), num_returns=1)
+                for ref in done:
+                    job = refs.pop(ref)
+                    yield job, ray.get(ref)
+        finally:
+            for ref in refs:
+                ray.cancel(ref, force=True)
+
+    def close(self) -> None:
+        if self._owns and self._ray.is_initialized():
+            self._ray.shutdown()
+        self._owns = False
+
+    def describe(self) -> str:
+        return f"Ray tasks on {self.where}"
+
+
+def check_executor_args(backend: str, workers: int | None = None, address: str | None = None) -> None:
+    """Validate executor arguments without starting anything.
+
+    Raises:
+        ValueError: unknown backend, workers < 1, or an address for a backend other than ray.
+        ImportError: ``ray`` without Ray installed (names the extra to install).
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend {backend!r} is invalid: valid are {list(BACKENDS)}")
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers = {workers} is invalid: expected an integer >= 1")
+    if address and backend != "ray":
+        raise ValueError(f"--address is for the ray backend, not {backend!r} (add --backend ray)")
+    if backend == "ray":
+        _import_ray()
+
+
+def default_backend(workers: int | None = None) -> str:
+    """``process`` when more than one worker would run, else ``serial``."""
+    return "process" if (workers or available_cpus()) > 1 else "serial"
+
+
+def make_executor(backend: str, workers: int | None = None, address: str | None = None):
+    """The executor for ``backend`` (one of :data:`BACKENDS`).
+
+    Args:
+        backend: ``"serial"``, ``"process"`` or ``"ray"``.
+        workers: processes of the pool / CPUs of a local Ray; default: the CPUs available.
+        address: Ray cluster address (``ray`` only; ``RAY_ADDRESS`` when None).
+
+    Raises:
+        ValueError: unknown backend, workers < 1, or an address for a backend other than ray.
+        ImportError: ``ray`` without Ray installed (names the extra to install).
+    """
+    check_executor_args(backend, workers, address)
+    workers = workers or available_cpus()
+    if backend == "serial":
+        return SerialExecutor()
+    if backend == "process":
+        return ProcessExecutor(workers)
+    return RayExecutor(workers, address)
+
+
+__all__ = ["BACKENDS", "check_executor_args", "default_backend", "SerialExecutor", "ProcessExecutor", "RayExecutor", "make_executor", "available_cpus"]

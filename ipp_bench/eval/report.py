@@ -1,0 +1,297 @@
+"""The leaderboard's report: a markdown table in the layout of the paper's Table I, and PNG plots.
+
+Everything is computed from ``results.csv`` alone (:func:`write_report`), so a report can be made
+again from a results file at any time. Every cell is the mean over episodes with a 95% percentile
+bootstrap interval (:func:`bootstrap_ci`, 2000 resamples, fixed seed: the same CSV always gives the
+same report). The best mean per task and column is in bold: the highest reduction, the lowest
+runtime per decision (means equal at the printed precision are all bold).
+
+Files written:
+
+``leaderboard.md``
+    rows = (task, planner), columns = uncertainty reduction and RMSE reduction at each report time
+    and the runtime per decision (the mean of each episode's mean decision time).
+``curves_<task>.png``
+    ROI trace and ROI RMSE over mission time per planner: mean with a shaded 95% band.
+``runtime_per_decision.png``
+    runtime per decision per planner and task (log scale, 95% interval whiskers).
+
+Plots use matplotlib's Agg canvas through :class:`matplotlib.figure.Figure` (no pyplot, no
+display, no global backend switch).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+N_RESAMPLES = 2000
+LEVEL = 0.95
+BOOTSTRAP_SEED = 0
+NAMESPACE = "ipp_bench/"
+
+REDUCTIONS = (("uncertainty_reduction_pct", "Uncertainty reduction"), ("rmse_reduction_pct", "RMSE reduction"))
+CURVES = (("trace_roi", "ROI trace of the covariance"), ("rmse_roi", "ROI RMSE"))
+
+
+def bootstrap_ci(values: Sequence[float], n_resamples: int = N_RESAMPLES, level: float = LEVEL,
+                 seed: int = BOOTSTRAP_SEED) -> tuple[float, float, float]:
+    """Mean of ``values`` and its percentile bootstrap interval ``(mean, low, high)``.
+
+    One value gives ``(v, v, v)``; the resampling is seeded, so the result is reproducible.
+    """
+    x = np.asarray(values, dtype=np.float64)
+    if x.size == 0:
+        raise ValueError("bootstrap_ci needs at least one value")
+    mean = float(x.mean())
+    if x.size == 1:
+        return mean, mean, mean
+    rng = np.random.default_rng(seed)
+    means = x[rng.integers(0, x.size, size=(n_resamples, x.size))].mean(axis=1)
+    alpha = (1.0 - level) / 2.0
+    low, high = np.quantile(means, [alpha, 1.0 - alpha])
+    return mean, float(low), float(high)
+
+
+def short_task(task: str) -> str:
+    return task.removeprefix(NAMESPACE)
+
+
+class Aggregate:
+    """Per-episode values grouped by (task, planner[, time]) from results.csv rows."""
+
+    def __init__(self, rows: Sequence[dict[str, Any]], tasks: Sequence[str] | None = None,
+                 planners: Sequence[str] | None = None):
+        self.tasks = list(tasks) if tasks else list(dict.fromkeys(r["task"] for r in rows))
+        self.planners = list(planners) if planners else list(dict.fromkeys(r["planner"] for r in rows))
+        self.values: dict[tuple[str, str, float, str], list[float]] = defaultdict(list)
+        self.runtime: dict[tuple[str, str], dict[int, float]] = defaultdict(dict)
+        self.times: dict[str, list[float]] = defaultdict(list)
+        self.seeds: dict[tuple[str, str], set[int]] = defaultdict(set)
+        for r in rows:
+            task, planner, t = r["task"], r["planner"], float(r["time_s"])
+            for key in ("trace_roi", "rmse_roi", "uncertainty_reduction_pct", "rmse_reduction_pct"):
+                self.values[(task, planner, t, key)].append(float(r[key]))
+            self.runtime[(task, planner)][int(r["seed"])] = float(r["decision_time_mean_s"])
+            self.seeds[(task, planner)].add(int(r["seed"]))
+            if t not in self.times[task]:
+                self.times[task].append(t)
+        for task in self.times:
+            self.times[task].sort()
+
+    def stat(self, task: str, planner: str, time_s: float, key: str) -> tuple[float, float, float] | None:
+        v = self.values.get((task, planner, time_s, key))
+        return bootstrap_ci(v) if v else None
+
+    def runtime_stat(self, task: str, planner: str) -> tuple[float, float, float] | None:
+        v = self.runtime.get((task, planner))
+        return bootstrap_ci(list(v.values())) if v else None
+
+    def all_times(self) -> list[float]:
+        return sorted({t for task in self.tasks for t in self.times.get(task, [])})
+
+    def episodes(self, task: str, planner: str) -> int:
+        return len(self.seeds.get((task, planner), ()))
+
+
+# --------------------------------------------------------------------------------------------------
+# markdown
+# --------------------------------------------------------------------------------------------------
+def _pct(x: float) -> str:
+    return f"{x:.1f}"
+
+
+def _seconds(x: float) -> str:
+    """Three significant digits without exponent: 3.94, 0.0123, 0.0000210."""
+    if x <= 0 or not math.isfinite(x):
+        return f"{x:g}"
+    digits = max(0, 2 - math.floor(math.log10(x)))
+    return f"{x:.{digits}f}"
+
+
+def _best(means: dict[str, float], fmt, lowest: bool) -> set[str]:
+    if not means:
+        return set()
+    target = min(means.values()) if lowest else max(means.values())
+    return {p for p, m in means.items() if fmt(m) == fmt(target)}
+
+
+def _cell(stat: tuple[float, float, float] | None, fmt, unit: str, bold: bool) -> str:
+    if stat is None:
+        return "–"
+    mean, low, high = stat
+    head = f"{fmt(mean)}{unit}"
+    if bold:
+        head = f"**{head}**"
+    return f"{head} [{fmt(low)}, {fmt(high)}]"
+
+
+def markdown_table(agg: Aggregate) -> str:
+    """Table I layout: one row per (task, planner); reductions at each report time; runtime."""
+    times = agg.all_times()
+    header = ["Environment", "Method"]
+    for _, label in REDUCTIONS:
+        header += [f"{label} {t:g} s" if i == 0 else f"{t:g} s" for i, t in enumerate(times)]
+    header.append("Runtime per decision [s]")
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join([":--", ":--"] + ["--:"] * (len(header) - 2)) + "|"]
+    for task in agg.tasks:
+        planners = [p for p in agg.planners if agg.episodes(task, p)]
+        best: dict[tuple[str, float], set[str]] = {}
+        for key, _ in REDUCTIONS:
+            for t in times:
+                means = {p: s[0] for p in planners if (s := agg.stat(task, p, t, key))}
+                best[(key, t)] = _best(means, _pct, lowest=False)
+        runtime_means = {p: s[0] for p in planners if (s := agg.runtime_stat(task, p))}
+        best_runtime = _best(runtime_means, _seconds, lowest=True)
+        for i, planner in enumerate(planners):
+            row = [f"**{short_task(task)}**" if i == 0 else "", f"`{planner}`"]
+            for key, _ in REDUCTIONS:
+                for t in times:
+                    row.append(_cell(agg.stat(task, planner, t, key), _pct, "%", planner in best[(key, t)]))
+            row.append(_cell(agg.runtime_stat(task, planner), _seconds, "", planner in best_runtime))
+            lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def final_table(agg: Aggregate) -> str:
+    """ROI trace and RMSE (absolute) at each task's last report time, and decisions per episode."""
+    lines = ["| Environment | Method | Time [s] | ROI trace | ROI RMSE | Episodes |",
+             "|:--|:--|--:|--:|--:|--:|"]
+    for task in agg.tasks:
+        if not agg.times.get(task):
+            continue
+        t = agg.times[task][-1]
+        for i, planner in enumerate(p for p in agg.planners if agg.episodes(task, p)):
+            trace = agg.stat(task, planner, t, "trace_roi")
+            rmse = agg.stat(task, planner, t, "rmse_roi")
+            lines.append("| " + " | ".join([
+                f"**{short_task(task)}**" if i == 0 else "", f"`{planner}`", f"{t:g}",
+                _cell(trace, lambda x: f"{x:.3g}", "", False), _cell(rmse, lambda x: f"{x:.3f}", "", False),
+                str(agg.episodes(task, planner))]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = False,
+                    plots: Sequence[str] = ()) -> str:
+    counts = sorted({agg.episodes(t, p) for t in agg.tasks for p in agg.planners if agg.episodes(t, p)})
+    n_text = " to ".join(str(c) for c in (counts[0], counts[-1])) if len(counts) > 1 else str(counts[0] if counts else 0)
+    parts = ["# ipp-bench leaderboard", ""]
+    if command:
+        parts += [f"Made with `{command}`" + (" (quick mode: few episodes, cheaper look-ahead)." if quick else "."), ""]
+    parts += [
+        f"Mean over {n_text} episodes per task and planner (every planner meets the same episode seeds), "
+        f"with the {LEVEL:.0%} percentile bootstrap interval of the mean in brackets ({N_RESAMPLES} resamples). "
+        "Reductions are relative to the prior, over the region of interest. Bold: the best per task and column "
+        "(highest reduction, lowest runtime). Runtime per decision: wall time of the planner's decision, "
+        "mean over each episode's decisions, then over episodes.",
+        "",
+        markdown_table(agg),
+        "## Absolute values at the end of the mission",
+        "",
+        final_table(agg),
+    ]
+    if plots:
+        parts += ["## Plots", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in plots] + [""]
+    return "\n".join(parts)
+
+
+# --------------------------------------------------------------------------------------------------
+# plots
+# --------------------------------------------------------------------------------------------------
+def _figure(**kwargs):
+    try:
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise ImportError('the leaderboard plots need matplotlib: pip install "ipp-bench[eval]"') from None
+    return Figure(**kwargs)
+
+
+def _colours(planners: Sequence[str]) -> dict[str, Any]:
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10"]
+    return {p: cmap(i % 10) for i, p in enumerate(planners)}
+
+
+def plot_curves(agg: Aggregate, task: str, path: str | Path) -> Path:
+    """ROI trace and RMSE over mission time for ``task``: mean per planner with a 95% band."""
+    colours = _colours(agg.planners)
+    fig = _figure(figsize=(10, 4), layout="constrained")
+    axes = fig.subplots(1, len(CURVES))
+    times = agg.times.get(task, [])
+    for ax, (key, label) in zip(axes, CURVES):
+        for planner in agg.planners:
+            stats = [agg.stat(task, planner, t, key) for t in times]
+            if not stats or any(s is None for s in stats):
+                continue
+            mean, low, high = (np.array(v) for v in zip(*stats))
+            ax.plot(times, mean, marker="o", color=colours[planner], label=planner)
+            ax.fill_between(times, low, high, color=colours[planner], alpha=0.2, linewidth=0)
+        ax.set_xlabel("mission time [s]")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize="small")
+    fig.suptitle(f"{short_task(task)}: mean and {LEVEL:.0%} bootstrap band over episodes")
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def plot_runtime(agg: Aggregate, path: str | Path) -> Path:
+    """Runtime per decision per planner (bars per task, log scale, 95% interval whiskers)."""
+    fig = _figure(figsize=(max(6.0, 1.2 * len(agg.planners) * max(1, len(agg.tasks)) / 1.5), 4),
+                  layout="constrained")
+    ax = fig.subplots()
+    width = 0.8 / max(1, len(agg.tasks))
+    x = np.arange(len(agg.planners))
+    for j, task in enumerate(agg.tasks):
+        stats = [agg.runtime_stat(task, p) for p in agg.planners]
+        mean = np.array([s[0] if s else np.nan for s in stats])
+        low = np.array([s[1] if s else np.nan for s in stats])
+        high = np.array([s[2] if s else np.nan for s in stats])
+        floor = 1e-7  # a log axis cannot show 0
+        mean_c = np.maximum(mean, floor)
+        err = np.vstack([mean_c - np.maximum(low, floor), np.maximum(high, floor) - mean_c])
+        ax.bar(x + (j - (len(agg.tasks) - 1) / 2) * width, mean_c, width, yerr=err, capsize=3,
+               label=short_task(task))
+    ax.set_xticks(x, agg.planners, rotation=20, ha="right")
+    ax.set_yscale("log")
+    ax.set_ylabel("runtime per decision [s]")
+    ax.grid(axis="y", alpha=0.3, which="both")
+    ax.legend(fontsize="small")
+    ax.set_title("Runtime per decision (mean over episodes, 95% bootstrap interval)")
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[str] | None = None,
+                 planners: Sequence[str] | None = None, command: str | None = None,
+                 quick: bool = False) -> list[Path]:
+    """Write ``leaderboard.md``, ``curves_<task>.png`` and ``runtime_per_decision.png`` from a results.csv.
+
+    Returns:
+        The paths written.
+    """
+    from .leaderboard import read_results
+
+    out_dir = Path(out_dir)
+    agg = Aggregate(read_results(results_csv), tasks, planners)
+    written: list[Path] = []
+    for task in agg.tasks:
+        if agg.times.get(task):
+            written.append(plot_curves(agg, task, out_dir / f"curves_{short_task(task).replace('/', '_')}.png"))
+    if agg.runtime:
+        written.append(plot_runtime(agg, out_dir / "runtime_per_decision.png"))
+    md = out_dir / "leaderboard.md"
+    md.write_text(markdown_report(agg, command, quick, [p.name for p in written]))
+    return [md, *written]
+
+
+__all__ = ["bootstrap_ci", "Aggregate", "markdown_table", "markdown_report", "plot_curves", "plot_runtime",
+           "write_report"]

@@ -1,0 +1,101 @@
+"""Planner registry: every planner by name, with a typed config overridable from a spec string.
+
+``make_planner("mcts:simulations=200,exploration=0.5")`` builds the MCTS planner with two fields of
+its config replaced. Planner modules are imported lazily, so ``attention`` (torch) costs nothing
+until it is asked for.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import typing
+from typing import Any
+
+from .base import ContinuousPlanner, GraphPlanner, Planner, RobotView
+
+# name -> "module:Class"; the class has a ``Config`` dataclass attribute.
+REGISTRY: dict[str, str] = {
+    "random": "ipp_bench.planners.simple:RandomPlanner",
+    "coverage": "ipp_bench.planners.simple:CoveragePlanner",
+    "greedy": "ipp_bench.planners.greedy:GreedyPlanner",
+    "mcts": "ipp_bench.planners.mcts:MCTSPlanner",
+    "cmaes": "ipp_bench.planners.cmaes:CMAESPlanner",
+    "attention": "ipp_bench.planners.attention:AttentionPlanner",
+}
+
+
+def register(name: str, target: str) -> None:
+    """Add a planner ``"module:Class"`` under ``name`` (e.g. from a plugin)."""
+    REGISTRY[name] = target
+
+
+def planner_names() -> list[str]:
+    return list(REGISTRY)
+
+
+def planner_class(name: str) -> type:
+    try:
+        target = REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown planner {name!r}: valid are {planner_names()}") from None
+    module, cls = target.split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def parse_spec(spec: str) -> tuple[str, dict[str, str]]:
+    """``"mcts:simulations=200,exploration=0.5"`` -> ``("mcts", {"simulations": "200", ...})``."""
+    name, _, rest = spec.partition(":")
+    overrides: dict[str, str] = {}
+    for item in filter(None, (p.strip() for p in rest.split(","))):
+        key, eq, value = item.partition("=")
+        if not eq or not key:
+            raise ValueError(f"planner spec {spec!r}: {item!r} is not key=value (e.g. 'mcts:simulations=200')")
+        overrides[key.strip()] = value.strip()
+    return name.strip(), overrides
+
+
+def _coerce(value: Any, kind: Any, where: str) -> Any:
+    if not isinstance(value, str):
+        return value
+    origin = typing.get_origin(kind)
+    args = typing.get_args(kind)
+    if origin is typing.Union or (origin is not None and type(None) in args):
+        if value.lower() in ("none", "null", ""):
+            return None
+        kind = next(a for a in args if a is not type(None))
+    try:
+        if kind is bool:
+            if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError
+            return value.lower() in ("true", "1", "yes")
+        if kind in (int, float, str):
+            return kind(value)
+    except ValueError:
+        raise ValueError(f"{where} = {value!r} is invalid: expected a {getattr(kind, '__name__', kind)}") from None
+    return value
+
+
+def make_config(name: str, overrides: dict[str, Any] | None = None) -> Any:
+    """The planner's config dataclass with ``overrides`` (strings are converted to the field type)."""
+    cls = planner_class(name)
+    Config = cls.Config
+    overrides = dict(overrides or {})
+    hints = typing.get_type_hints(Config)
+    fields = {f.name for f in dataclasses.fields(Config)}
+    unknown = set(overrides) - fields
+    if unknown:
+        raise ValueError(f"planner {name!r} has no setting {sorted(unknown)}: valid are {sorted(fields)}")
+    values = {k: _coerce(v, hints[k], f"{name}.{k}") for k, v in overrides.items()}
+    return Config(**values)
+
+
+def make_planner(spec: str, **overrides: Any):
+    """A planner from ``"name[:key=value,...]"``; keyword overrides win over the spec's."""
+    name, spec_overrides = parse_spec(spec)
+    cls = planner_class(name)
+    return cls(make_config(name, {**spec_overrides, **overrides}))
+
+
+__all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "REGISTRY", "register",
+           "planner_names", "planner_class", "parse_spec", "make_config", "make_planner"]

@@ -1,0 +1,114 @@
+"""``attention``: the trained attention policy of the paper as a roadmap planner.
+
+Loads the checkpoint shipped in the package (``ipp_bench/policies/checkpoints/attention_grid15.pt``)
+or ``checkpoint=PATH`` (an ``export.pt`` of an ``ipp-bench train`` run), and picks the neighbour
+with the highest probability (``sample=true``: draws from the policy instead, seeded per episode).
+Needs torch (``pip install "ipp-bench[train]"``); the planner registry imports it lazily.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .base import GraphPlanner, RobotView
+
+
+@dataclass(frozen=True)
+class AttentionConfig:
+    """Settings of the attention planner."""
+
+    checkpoint: str = ""  # path of an exported checkpoint (.pt); "" = the shipped one
+    sample: bool = False  # draw the action from the policy instead of taking the argmax
+    device: str = "cpu"  # torch device of the network
+    threads: int = 0  # torch intra-op threads to set; 0 = leave torch's setting alone
+
+    def __post_init__(self) -> None:
+        if isinstance(self.sample, str):  # from "attention:sample=true"
+            object.__setattr__(self, "sample", self.sample.strip().lower() in ("1", "true", "yes", "on"))
+        if not isinstance(self.threads, int) or self.threads < 0:
+            try:
+                object.__setattr__(self, "threads", int(self.threads))
+            except (TypeError, ValueError):
+                raise ValueError(f"attention.threads = {self.threads!r} is invalid: expected an integer >= 0") from None
+            if self.threads < 0:
+                raise ValueError(f"attention.threads = {self.threads!r} is invalid: expected an integer >= 0")
+
+
+class AttentionPlanner(GraphPlanner):
+    """Attention encoder / pointer decoder policy (paper Section IV-B), one forward pass per decision."""
+
+    name = "attention"
+    kind = "graph"
+    Config = AttentionConfig
+
+    def __init__(self, config: AttentionConfig | None = None, **kwargs: Any):
+        if config is None:
+            config = AttentionConfig(**kwargs)
+        elif kwargs:
+            raise TypeError("pass either an AttentionConfig or keyword settings, not both")
+        super().__init__(config)
+        try:
+            import torch
+        except ImportError:
+            raise ImportError(
+                'the attention planner needs torch: pip install "ipp-bench[train]"') from None
+        from ..policies.checkpoint import load_checkpoint
+
+        self._torch = torch
+        if config.threads:
+            torch.set_num_threads(config.threads)
+        self.device = torch.device(config.device)
+        self.net, self.meta = load_checkpoint(config.checkpoint or None, device=self.device)
+        self._checked_shape: tuple | None = None
+
+    def reset(self, view: RobotView, seed: int) -> None:
+        super().reset(view, seed)
+
+    def _check(self, obs: dict[str, np.ndarray]) -> None:
+        shape = (obs["node_features"].shape[-1], obs["pos_encoding"].shape[-1])
+        if shape == self._checked_shape:
+            return
+        from ..policies.checkpoint import CheckpointError
+
+        cfg = self.net.cfg
+        if shape != (cfg.node_dim, cfg.pe_dim):
+            raise CheckpointError(
+                f"attention checkpoint {self.config.checkpoint or '(shipped)'} expects {cfg.node_dim} node features "
+                f"and pe_dim={cfg.pe_dim}; this environment gives {shape[0]} and pe_dim={shape[1]}")
+        self._checked_shape = shape
+
+    def probabilities(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """Policy over the k neighbours (masked neighbours have probability 0)."""
+        logits = self._logits(obs)
+        p = np.exp(logits - logits.max())
+        return p / p.sum()
+
+    def _logits(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        self._check(obs)
+        torch = self._torch
+        mask = np.asarray(obs["action_mask"]).astype(bool).reshape(-1)
+        if not mask.any():
+            raise ValueError("no neighbour is affordable: the episode is over (action_mask is all zero)")
+        dev = self.device
+        with torch.inference_mode():
+            logits, _ = self.net(
+                torch.as_tensor(np.asarray(obs["node_features"], dtype=np.float32)).unsqueeze(0).to(dev),
+                torch.as_tensor(np.asarray(obs["pos_encoding"], dtype=np.float32)).unsqueeze(0).to(dev),
+                torch.as_tensor(np.asarray(obs["current_node"], dtype=np.int64).reshape(1)).to(dev),
+                torch.as_tensor(np.asarray(obs["neighbours"], dtype=np.int64)).unsqueeze(0).to(dev),
+                torch.as_tensor(mask).unsqueeze(0).to(dev),
+                torch.as_tensor(np.asarray(obs["budget"], dtype=np.float32).reshape(1, 1)).to(dev),
+            )
+        out = logits[0].cpu().numpy().astype(np.float64)
+        out[~mask] = -np.inf  # masked neighbours never win, whatever the network says
+        return out
+
+    def act(self, obs: dict[str, np.ndarray]) -> int:
+        logits = self._logits(obs)
+        if not self.config.sample:
+            return int(np.argmax(logits))
+        p = np.exp(logits - logits.max())
+        return int(self.rng.choice(p.size, p=p / p.sum()))

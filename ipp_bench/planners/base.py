@@ -1,0 +1,171 @@
+"""The planner interface and the robot's-eye view every planner gets.
+
+A planner is reset at the start of an episode with a :class:`RobotView` and then asked for one
+decision at a time: a neighbour index (``kind = "graph"``, like a policy on the roadmap MDP) or a
+3D waypoint (``kind = "continuous"``, flown with ``Mission.fly_to``). The view holds what a real
+robot has (belief, roadmap, camera model, clock and budget) and nothing of the ground truth.
+Look-ahead planners predict information gain with the belief's covariance only
+(:meth:`RobotView.predict_leg_variance`), never by stepping the real episode.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar, Protocol, runtime_checkable
+
+import numpy as np
+
+from .. import metrics as M
+from ..belief import GPBelief
+from ..config import IPPConfig
+from ..mission import leg_samples
+from ..roadmap import Roadmap
+from ..sensor import Observation, Sensor, stack
+
+
+class RobotView:
+    """What a planner may see of an episode: belief, roadmap, camera model, clock, budget.
+
+    Wraps a :class:`~ipp_bench.envs.graph.GraphIPPEnv` (or subclass) after ``reset``.
+    """
+
+    def __init__(self, env):
+        self._env = env
+
+    # -- static knowledge ------------------------------------------------------------------------
+    @property
+    def config(self) -> IPPConfig:
+        return self._env.config
+
+    @property
+    def roadmap(self) -> Roadmap:
+        return self._env.roadmap
+
+    @property
+    def sensor(self) -> Sensor:
+        return self._env.sensor
+
+    # -- state -------------------------------------------------------------------------------------
+    @property
+    def belief(self) -> GPBelief:
+        """The live belief (read it; never update it: that is the mission's job)."""
+        return self._env.mission.belief
+
+    @property
+    def position(self) -> np.ndarray:
+        return self._env.mission.position.copy()
+
+    @property
+    def current_node(self) -> int:
+        return self._env.current_node
+
+    @property
+    def time_s(self) -> float:
+        return self._env.mission.time_s
+
+    @property
+    def remaining_s(self) -> float:
+        return self._env.mission.remaining_s
+
+    def action_mask(self) -> np.ndarray:
+        return self._env.action_masks()
+
+    def belief_roi(self) -> np.ndarray:
+        return self._env.mission.belief_roi()
+
+    # -- prediction --------------------------------------------------------------------------------
+    def leg_observations(self, start, end) -> list[Observation]:
+        """The read-outs the mission would take flying ``start -> end`` (same spacing rule)."""
+        start = np.asarray(start, dtype=np.float64)
+        delta = np.asarray(end, dtype=np.float64) - start
+        dist = float(np.linalg.norm(delta))
+        if dist <= 1e-6:
+            return []
+        s = leg_samples(dist, 0.0, self.config.mission.measurement_spacing)
+        out = []
+        for p in start + np.outer(s / dist, delta):
+            obs = self.sensor.observe(p)
+            if obs is not None:
+                out.append(obs)
+        return out
+
+    @staticmethod
+    def predict_variance(belief: GPBelief, observations: list[Observation]) -> np.ndarray:
+        """Posterior marginal variances after the read-outs (values do not matter)."""
+        if not observations:
+            return belief.variance
+        cells, W, var = stack(observations)
+        return belief.predict_variance_local(cells, W, var)
+
+    def roi_trace(self, variance: np.ndarray, roi: np.ndarray) -> float:
+        return M.trace_roi(variance, roi)
+
+
+@runtime_checkable
+class Planner(Protocol):
+    """One decision at a time.
+
+    Attributes:
+        name: registry name.
+        kind: ``"graph"`` (``act`` returns a neighbour index) or ``"continuous"``
+            (``next_waypoint`` returns a 3D point, or None when done).
+    """
+
+    name: ClassVar[str]
+    kind: ClassVar[str]
+
+    def reset(self, view: RobotView, seed: int) -> None: ...
+
+
+class GraphPlanner:
+    """Base of roadmap planners: ``act(obs) -> neighbour index``."""
+
+    name: ClassVar[str] = "graph"
+    kind: ClassVar[str] = "graph"
+
+    def __init__(self, config: Any = None):
+        self.config = config
+        self.view: RobotView | None = None
+        self.rng = np.random.default_rng(0)
+
+    def reset(self, view: RobotView, seed: int) -> None:
+        self.view = view
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, obs: dict[str, np.ndarray]) -> int:
+        raise NotImplementedError
+
+
+class ContinuousPlanner:
+    """Base of continuous planners: ``next_waypoint() -> xyz`` (None: nothing affordable)."""
+
+    name: ClassVar[str] = "continuous"
+    kind: ClassVar[str] = "continuous"
+
+    def __init__(self, config: Any = None):
+        self.config = config
+        self.view: RobotView | None = None
+        self.rng = np.random.default_rng(0)
+
+    def reset(self, view: RobotView, seed: int) -> None:
+        self.view = view
+        self.rng = np.random.default_rng(seed)
+
+    def next_waypoint(self) -> np.ndarray | None:
+        raise NotImplementedError
+
+    def affordable(self, target: np.ndarray, margin_s: float = 1e-6) -> np.ndarray | None:
+        """``target``, or the point on the way to it where the remaining budget runs out."""
+        view = self.view
+        here = view.position
+        delta = np.asarray(target, dtype=np.float64) - here
+        dist = float(np.linalg.norm(delta))
+        reach = max(view.remaining_s - margin_s, 0.0) * view.config.mission.speed
+        if reach < 0.5 or dist <= 1e-6:  # under half a metre left: the mission is over
+            return None
+        return here + delta * min(1.0, reach / dist)
+
+
+@dataclasses.dataclass(frozen=True)
+class NoConfig:
+    """Planners without settings."""

@@ -1,0 +1,143 @@
+"""Receding-horizon CMA-ES over continuous 3D waypoints (Hitz et al. 2017; Popovic et al. 2020).
+
+At every decision CMA-ES (pycma, seeded, writing no files) optimises ``n_waypoints`` points in
+[0, width] x [0, height] x [lowest, highest altitude level]. The objective is the predicted
+reduction of Tr(P) over the belief ROI from the measurements the mission would take along the
+path (same spacing rule, values not needed), divided by the path's flight time, the path cut at
+the remaining budget. The first waypoint is flown; the rest warm-starts the next optimisation.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .base import ContinuousPlanner
+
+
+@dataclass(frozen=True)
+class CMAESConfig:
+    """CMA-ES settings (REFERENCE.md: step ~0.2-0.3 of the range, population ~12).
+
+    Attributes:
+        n_waypoints: waypoints optimised per decision.
+        popsize: CMA-ES population size.
+        max_evals: objective evaluations per decision.
+        sigma0: initial step size as a fraction of each axis' range.
+        min_leg_m: shortest first leg [m] (shorter candidates are stretched to it).
+    """
+
+    n_waypoints: int = 3
+    popsize: int = 12
+    max_evals: int = 72
+    sigma0: float = 0.25
+    min_leg_m: float = 2.5  # [m]
+
+    def __post_init__(self):
+        def bad(name, valid):
+            raise ValueError(f"cmaes.{name} = {getattr(self, name)!r} is invalid: expected {valid}")
+        if not (isinstance(self.n_waypoints, int) and self.n_waypoints >= 1):
+            bad("n_waypoints", "an integer >= 1")
+        if not (isinstance(self.popsize, int) and self.popsize >= 2):
+            bad("popsize", "an integer >= 2")
+        if not (isinstance(self.max_evals, int) and self.max_evals >= self.popsize):
+            bad("max_evals", f"an integer >= popsize ({self.popsize})")
+        if not 0.0 < self.sigma0 <= 1.0:
+            bad("sigma0", "a number in (0, 1]")
+        if not (math.isfinite(self.min_leg_m) and self.min_leg_m > 0):
+            bad("min_leg_m", "a number > 0 [m]")
+
+
+class CMAESPlanner(ContinuousPlanner):
+    """Receding-horizon CMA-ES over continuous waypoints (the paper's deployment baseline)."""
+
+    name = "cmaes"
+    Config = CMAESConfig
+
+    def __init__(self, config: CMAESConfig | None = None):
+        super().__init__(config or CMAESConfig())
+
+    def reset(self, view, seed):
+        try:
+            import cma  # noqa: F401
+        except ImportError:
+            raise ImportError('the cmaes planner needs pycma: pip install "ipp-bench[eval]"') from None
+        super().reset(view, seed)
+        cfg = view.config
+        width, height = cfg.grid.size_m
+        alts = cfg.graph.altitudes
+        self._lo = np.array([0.0, 0.0, alts[0]])
+        self._hi = np.array([width, height, alts[-1] if alts[-1] > alts[0] else alts[0] + 1e-6])
+        self._plan: np.ndarray | None = None
+
+    def _to_xyz(self, u: np.ndarray) -> np.ndarray:
+        pts = self._lo + np.clip(u.reshape(-1, 3), 0.0, 1.0) * (self._hi - self._lo)
+        here = self.view.position
+        d = pts[0] - here
+        dist = float(np.linalg.norm(d))
+        if dist < self.config.min_leg_m:  # stretch a too-short first leg (inside the box)
+            direction = d / dist if dist > 1e-9 else np.array([1.0, 0.0, 0.0])
+            pts[0] = np.clip(here + direction * self.config.min_leg_m, self._lo, self._hi)
+        return pts
+
+    def _path(self, pts: np.ndarray) -> tuple[list, float]:
+        """Observations along the path and its flight time, cut at the remaining budget."""
+        view = self.view
+        speed = view.config.mission.speed
+        left = max(view.remaining_s - 1e-6, 0.0) * speed  # [m]
+        here, obs, flown = view.position, [], 0.0
+        for p in pts:
+            dist = float(np.linalg.norm(p - here))
+            if dist <= 1e-9:
+                continue
+            if dist > left:
+                p = here + (p - here) * (left / dist)
+                dist = left
+            if dist < 0.5:
+                break
+            obs += view.leg_observations(here, p)
+            flown += dist
+            left -= dist
+            here = p
+        return obs, flown / speed
+
+    def _objective(self, u: np.ndarray) -> float:
+        obs, duration = self._path(self._to_xyz(u))
+        if duration <= 0:
+            return 0.0
+        var = self.view.predict_variance(self._belief, obs)
+        return -(self._before - self.view.roi_trace(var, self._roi)) / duration
+
+    def next_waypoint(self):
+        import cma
+
+        view = self.view
+        cfg = self.config
+        if view.remaining_s * view.config.mission.speed < 0.5:
+            return None
+        self._belief = view.belief
+        self._roi = view.belief_roi()
+        self._before = view.roi_trace(self._belief.variance, self._roi)
+        here_u = (view.position - self._lo) / (self._hi - self._lo)
+        if self._plan is None:
+            x0 = np.tile(np.clip(here_u, 0, 1), cfg.n_waypoints)
+        else:  # warm start: the rest of the last plan, then its last point again
+            rest = self._plan[1:]
+            x0 = np.concatenate([rest, np.repeat(rest[-1:] if len(rest) else self._plan[-1:], 1, axis=0)]).ravel()
+        opts = {"bounds": [0.0, 1.0], "popsize": cfg.popsize, "maxfevals": cfg.max_evals,
+                "seed": int(self.rng.integers(1, 2**31 - 1)), "verbose": -9, "verb_log": 0,
+                "verb_disp": 0, "tolfun": 1e-12, "tolx": 1e-9}
+        es = cma.CMAEvolutionStrategy(np.clip(x0, 1e-3, 1 - 1e-3), cfg.sigma0, opts)
+        best_u, best_f = x0, self._objective(x0)
+        while not es.stop():
+            cands = es.ask()
+            fs = [self._objective(np.asarray(c)) for c in cands]
+            es.tell(cands, fs)
+            i = int(np.argmin(fs))
+            if fs[i] < best_f:
+                best_u, best_f = np.asarray(cands[i]), fs[i]
+        pts = self._to_xyz(best_u)
+        self._plan = (pts - self._lo) / (self._hi - self._lo)
+        return self.affordable(pts[0])

@@ -1,0 +1,18 @@
+"""MuJoCo deployment: the weed-field scene, the quadrotor and its controller, the camera.
+
+Modules (imports flow downwards):
+
+- ``gl``: picks ``MUJOCO_GL`` (EGL, then OSMesa) before MuJoCo is imported; the only
+  ``import mujoco`` of the package.
+- ``texture``: per-seed ground texture of a weed field (numpy).
+- ``quadrotor``, ``scene``: the airframe and the scene, composed with ``MjSpec``.
+- ``controller``, ``flight``: cascaded position -> attitude -> thrust control, fixed-step physics.
+- ``render``: the off-screen renderer (owns the GL context, created lazily, closed explicitly).
+- ``vision``: HSV threshold and ground projection of the camera frame to per-cell weed fractions.
+- ``world``: all of the above for one grid; ``mission``: :class:`MuJoCoMission`;
+  ``env``: the gymnasium task ``ipp_bench/MuJoCoWeed15-v0``; ``demo``: ``ipp-bench demo``.
+
+Needs ``pip install "ipp-bench[sim]"`` and a system EGL or OSMesa (see ``gl``).
+"""
+
+from ipp_bench.sim import gl as _gl  # noqa: F401  (first: MUJOCO_GL before mujoco is imported)

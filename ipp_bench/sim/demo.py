@@ -1,0 +1,463 @@
+"""``ipp-bench demo``: fly a planner in the MuJoCo deployment and write an H.264 video.
+
+Each video frame shows a chase view of the drone, its downward camera and the HSV weed mask
+of that frame, the ground truth, the belief mean and standard deviation with the path coloured
+by mission time, and trace(P) over the ground-truth ROI against mission time. Frames are taken
+every ``speedup / fps`` seconds of simulated time, so a 200 s mission at the defaults (10 fps,
+4x) gives a 50 s video. ``--compare PLANNER`` flies a second planner on the same seed (no video)
+and writes the paper's comparison plot (trace over time, both planners) as a PNG.
+
+The same arguments give the same video, frame for frame and byte for byte: physics, rendering,
+sensor noise and planners are seeded, and the encoder runs with a fixed thread count.
+
+CLI wiring (``ipp_bench/cli.py``)::
+
+    demo = sub.add_parser("demo", help="fly a planner in MuJoCo and write an mp4")
+    add_demo_arguments(demo)
+    ... return run_demo(args)
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+DEFAULT_TASK = "ipp_bench/MuJoCoWeed15-v0"
+MAX_DECISIONS = 100_000
+
+
+def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Adds the ``demo`` options to ``parser`` (a sub-command parser of ``ipp-bench``)."""
+    parser.add_argument("--task", default=DEFAULT_TASK, help=f"task id (default {DEFAULT_TASK})")
+    parser.add_argument("--planner", default="attention",
+                        help="planner spec, any registered planner, e.g. 'greedy' or 'mcts:simulations=50' "
+                             "(default: attention)")
+    parser.add_argument("--seed", type=int, default=0, help="episode seed: field, texture, start, noise")
+    parser.add_argument("--out", default="demo.mp4", help="output video (.mp4, H.264)")
+    parser.add_argument("--compare", default=None, metavar="PLANNER",
+                        help="also fly this planner on the same seed and plot both traces (PNG)")
+    parser.add_argument("--compare-out", default=None, metavar="PNG",
+                        help="comparison plot path (default: <out>_compare.png)")
+    parser.add_argument("--budget", type=float, default=None, help="override the task's budget [s] (short demos)")
+    parser.add_argument("--fps", type=int, default=10, help="video frames per second (default 10)")
+    parser.add_argument("--speedup", type=float, default=4.0,
+                        help="mission seconds per video second (default 4)")
+    parser.add_argument("--size", default="1280x720", help="video WIDTHxHEIGHT, multiples of 16 (default 1280x720)")
+    parser.add_argument("--crf", type=int, default=30, help="x264 quality, lower is better/larger (default 30)")
+    parser.add_argument("--hold", type=float, default=1.0, help="seconds of video holding the final frame")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size {text!r} is invalid: expected WIDTHxHEIGHT, e.g. 1280x720") from None
+    if w < 320 or h < 180 or w % 16 or h % 16:
+        raise ValueError(f"--size {text!r} is invalid: width >= 320, height >= 180, both multiples of 16")
+    return w, h
+
+
+# -- episodes ------------------------------------------------------------------------------------
+@dataclass
+class EpisodeLog:
+    """What a demo needs of a finished episode."""
+
+    planner: str
+    seed: int
+    history: list = field(default_factory=list)  # MetricRecord list of the mission
+    metrics: dict = field(default_factory=dict)
+    decisions: int = 0
+    decision_wall_s: float = 0.0
+    episode_wall_s: float = 0.0
+
+
+def make_sim_env(task: str, budget: float | None = None):
+    """The unwrapped environment of ``task``; it must be a MuJoCo task (entry point in ``ipp_bench.sim``)."""
+    import gymnasium as gym
+
+    import ipp_bench.envs as envs
+
+    spec = envs.task_spec(task)
+    if not spec.entry_point.startswith("ipp_bench.sim"):
+        deploy = envs.tagged("deployment")
+        raise ValueError(f"task {task!r} is not simulated in MuJoCo: the demo needs one of {deploy}")
+    overrides = {} if budget is None else {"budget_s": float(budget)}
+    return gym.make(task, **overrides).unwrapped
+
+
+def fly_episode(env, planner_spec: str, seed: int,
+                on_reset: Callable[[object], None] | None = None) -> EpisodeLog:
+    """Runs one episode of ``planner_spec`` on ``env`` (same loop as the evaluation runner).
+
+    ``on_reset(env)`` is called after ``reset``, before the first decision (the video hooks in).
+    """
+    from ipp_bench.planners import RobotView, make_planner
+
+    agent = make_planner(planner_spec)
+    obs, _ = env.reset(seed=int(seed))
+    agent.reset(RobotView(env), int(seed))
+    if on_reset is not None:
+        on_reset(env)
+    log = EpisodeLog(planner_spec, int(seed))
+    t_start = time.perf_counter()
+    while log.decisions < MAX_DECISIONS:
+        t0 = time.perf_counter()
+        if agent.kind == "graph":
+            if not obs["action_mask"].any():
+                break
+            action = agent.act(obs)
+            log.decision_wall_s += time.perf_counter() - t0
+            log.decisions += 1
+            obs, _, terminated, _, _ = env.step(action)
+            if terminated:
+                break
+        else:
+            waypoint = agent.next_waypoint()
+            log.decision_wall_s += time.perf_counter() - t0
+            if waypoint is None:
+                break
+            log.decisions += 1
+            env.mission.fly_to(waypoint)
+    log.episode_wall_s = time.perf_counter() - t_start
+    log.history = list(env.mission.history)
+    log.metrics = env.mission.metrics()
+    return log
+
+
+# -- video ---------------------------------------------------------------------------------------
+class DemoVideo:
+    """Composes and encodes the demo frames of one episode.
+
+    Static parts (titles, axes, colour bars, ground truth) are drawn once by matplotlib; per frame,
+    the camera images and belief maps are pasted into the canvas as pixels and only the path,
+    trace curve and status line are drawn by matplotlib (blitting), ~30 ms a frame.
+
+    Args:
+        env: a :class:`~ipp_bench.sim.env.MuJoCoIPPEnv` after ``reset``.
+        path: output mp4.
+        title: planner / task line at the top.
+        size: (width, height) [px].
+        fps, speedup, crf, hold_s: see :func:`add_demo_arguments`.
+        progress: optional tqdm bar over mission seconds.
+    """
+
+    FIG_WIDTH = 12.8  # [in]; dpi = width / 12.8, so fonts and layout scale with the video size
+
+    def __init__(self, env, path: str, title: str, size=(1280, 720), fps: int = 10, speedup: float = 4.0,
+                 crf: int = 30, hold_s: float = 1.0, progress=None):
+        import imageio_ffmpeg
+        from matplotlib import colormaps
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.cm import ScalarMappable
+        from matplotlib.collections import LineCollection
+        from matplotlib.colors import Normalize
+        from matplotlib.figure import Figure
+
+        from ipp_bench.sim.render import chase_camera
+
+        self.env, self.mission = env, env.mission
+        self.world = env.world
+        self.size, self.fps, self.hold_s = size, int(fps), float(hold_s)
+        self.interval = float(speedup) / float(fps)  # [s] of mission time between frames
+        self.next_t = 0.0
+        self.frames = 0
+        self.progress = progress
+        self._chase = chase_camera(self.world.scene)
+        cfg = env.config
+        width_m, height_m = cfg.grid.size_m
+        extent = (0.0, width_m, 0.0, height_m)
+        budget = cfg.mission.budget_s
+        std0 = math.sqrt(cfg.gp.signal_variance)
+        self._maps = [(colormaps["viridis"], Normalize(0.0, 1.0)), (colormaps["magma"], Normalize(0.0, std0))]
+
+        w, h = size
+        figsize = (self.FIG_WIDTH, self.FIG_WIDTH * h / w)
+        fig = Figure(figsize=figsize, dpi=w / self.FIG_WIDTH, facecolor="white")
+        self.fig, self.canvas = fig, FigureCanvasAgg(fig)
+        fig.text(0.01, 0.985, title, fontsize=13, weight="bold", va="top")
+        self._status = fig.text(0.99, 0.985, "", fontsize=12, ha="right", va="top", animated=True)
+
+        def axes(rect, name):
+            ax = fig.add_axes(rect)
+            ax.set_title(name, fontsize=10)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            return ax
+
+        def map_axes(rect, name):
+            ax = fig.add_axes(rect)
+            ax.set_title(name, fontsize=10)
+            ax.tick_params(labelsize=7)
+            ax.set_xlim(0, width_m)
+            ax.set_ylim(0, height_m)
+            ax.set_aspect("equal")
+            return ax
+
+        square = 0.235 * figsize[0] / figsize[1]  # figure height fraction of a 0.235-wide square
+        ax_chase = axes([0.01, 0.45, 0.48, 0.46], "chase view")
+        ax_cam = axes([0.51, 0.91 - square, 0.235, square], "downward camera (60 deg)")
+        ax_mask = axes([0.755, 0.91 - square, 0.235, square], "HSV weed mask")
+        ax_truth = map_axes([0.035, 0.06, 0.17, 0.30], "ground truth (weed fraction)")
+        ax_truth.imshow(self.mission.truth, origin="lower", extent=extent, vmin=0, vmax=1, cmap="viridis")
+        ax_mean = map_axes([0.245, 0.06, 0.17, 0.30], "belief mean")
+        ax_std = map_axes([0.455, 0.06, 0.17, 0.30], "belief std, path by time")
+        for ax, (cmap, norm) in zip((ax_mean, ax_std), self._maps):
+            fig.colorbar(ScalarMappable(norm, cmap), ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=7)
+        self._paths, self._drones = [], []
+        for ax in (ax_mean, ax_std):
+            lc = LineCollection([], cmap="plasma", linewidths=2.0, animated=True)
+            lc.set_clim(0, budget)
+            ax.add_collection(lc)
+            self._paths.append(lc)
+            (dot,) = ax.plot([], [], "o", ms=6, mfc="red", mec="white", animated=True)
+            self._drones.append(dot)
+        ax_tr = fig.add_axes([0.70, 0.09, 0.285, 0.27])
+        ax_tr.set_title("trace(P) over the ROI", fontsize=10)
+        ax_tr.set_xlabel("mission time [s]", fontsize=8)
+        ax_tr.tick_params(labelsize=7)
+        ax_tr.set_xlim(0, budget)
+        prior = self.mission.history[0].trace_roi
+        ax_tr.set_ylim(0, prior * 1.05 if prior > 0 else 1.0)
+        ax_tr.grid(alpha=0.3)
+        (self._trace,) = ax_tr.plot([], [], "-", color="tab:blue", lw=2, drawstyle="steps-post", animated=True)
+        self._animated = [*self._paths, *self._drones, self._trace, self._status]
+        self.canvas.draw()
+        if self.canvas.get_width_height() != (w, h):
+            raise ValueError(f"--size {w}x{h}: the figure renders at {self.canvas.get_width_height()}; "
+                             "use a size whose width is a multiple of 16 px per 12.8 in, e.g. 1280x720")
+        self._background = self.canvas.copy_from_bbox(fig.bbox)
+        # pixel boxes (row0, row1, col0, col1) of the pasted images, from the drawn axes
+        self._box_chase, self._box_cam, self._box_mask, self._box_mean, self._box_std = (
+            self._box(ax) for ax in (ax_chase, ax_cam, ax_mask, ax_mean, ax_std))
+        side = min(self._box_cam[1] - self._box_cam[0], self._box_cam[3] - self._box_cam[2])
+        self._box_cam = self._square(self._box_cam, side)
+        self._box_mask = self._square(self._box_mask, side)
+        shape = self.mission.truth.shape
+        self._map_index = [self._upsample_index(b, shape) for b in (self._box_mean, self._box_std)]
+
+        self._writer = imageio_ffmpeg.write_frames(
+            str(path), (w, h), fps=self.fps, codec="libx264", pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
+            quality=None, macro_block_size=16,
+            output_params=["-crf", str(int(crf)), "-preset", "medium", "-threads", "2",
+                           "-movflags", "+faststart", "-tune", "animation"])
+        self._writer.send(None)
+
+    def _box(self, ax) -> tuple[int, int, int, int]:
+        """Inner pixel box of ``ax`` as (row0, row1, col0, col1), rows from the top."""
+        bb = ax.get_window_extent()
+        h = self.size[1]
+        c0, c1 = int(math.ceil(bb.x0)) + 1, int(math.floor(bb.x1))
+        r0, r1 = h - int(math.floor(bb.y1)) + 1, h - int(math.ceil(bb.y0))
+        return r0, r1, c0, c1
+
+    @staticmethod
+    def _square(box, side):
+        r0, r1, c0, c1 = box
+        r0 += ((r1 - r0) - side) // 2
+        c0 += ((c1 - c0) - side) // 2
+        return r0, r0 + side, c0, c0 + side
+
+    @staticmethod
+    def _upsample_index(box, shape):
+        r0, r1, c0, c1 = box
+        rows, cols = shape
+        ri = ((np.arange(r1 - r0) + 0.5) / (r1 - r0) * rows).astype(int)[::-1]  # origin lower
+        ci = ((np.arange(c1 - c0) + 0.5) / (c1 - c0) * cols).astype(int)
+        return np.ix_(ri, ci)
+
+    # -- per step / per frame -------------------------------------------------------------------
+    def hook(self, mission) -> None:
+        """Step hook of the mission: grabs every frame that is due."""
+        while mission.flight.time_s >= self.next_t - 1e-9:
+            self.grab(mission.flight.time_s)
+            self.next_t += self.interval
+
+    def grab(self, t: float) -> None:
+        self._writer.send(self.compose(t))
+        self.frames += 1
+        if self.progress is not None:
+            self.progress.update(min(t, self.progress.total) - self.progress.n)
+
+    def compose(self, t: float) -> np.ndarray:
+        """The (H, W, 3) uint8 frame at mission time ``t``."""
+        mission, world = self.mission, self.world
+        renderer = world.renderer
+        self.canvas.restore_region(self._background)
+        buf = np.asarray(self.canvas.buffer_rgba())
+        r0, r1, c0, c1 = self._box_chase
+        buf[r0:r1, c0:c1, :3] = renderer.render(self._chase, c1 - c0, r1 - r0)
+        r0, r1, c0, c1 = self._box_cam
+        cam = renderer.render(None, c1 - c0, r1 - r0)
+        buf[r0:r1, c0:c1, :3] = cam
+        weed = world.cfg.threshold(cam)
+        shaded = (cam * 0.35).astype(np.uint8)
+        shaded[weed] = (255, 40, 200)
+        r0, r1, c0, c1 = self._box_mask
+        buf[r0:r1, c0:c1, :3] = shaded
+        shape = mission.truth.shape
+        values = (mission.belief.mean.reshape(shape), np.sqrt(np.maximum(mission.belief.variance, 0.0)).reshape(shape))
+        for (cmap, norm), box, index, v in zip(self._maps, (self._box_mean, self._box_std), self._map_index, values):
+            r0, r1, c0, c1 = box
+            buf[r0:r1, c0:c1, :3] = cmap(norm(v), bytes=True)[..., :3][index]
+        here = world.flight.position
+        path = np.array([p for p in mission.path if p[0] <= t + 1e-9] + [(t, *here)])
+        seg = np.stack([path[:-1, 1:3], path[1:, 1:3]], axis=1)
+        for lc, dot in zip(self._paths, self._drones):
+            lc.set_segments(seg)
+            lc.set_array(path[1:, 0])
+            dot.set_data([here[0]], [here[1]])
+        hist = [(r.time_s, r.trace_roi) for r in mission.history if r.time_s <= t + 1e-9]
+        hist.append((t, mission.history[-1].trace_roi))
+        ht = np.array(hist)
+        self._trace.set_data(ht[:, 0], ht[:, 1])
+        red = mission.history[-1].uncertainty_reduction_pct
+        self._status.set_text(f"t = {t:6.1f} s   altitude {here[2]:4.1f} m   "
+                              f"uncertainty reduction {red:5.1f} %")
+        for artist in self._animated:
+            if artist.axes is not None:
+                artist.axes.draw_artist(artist)
+            else:
+                self.fig.draw_artist(artist)
+        return np.ascontiguousarray(buf[..., :3])
+
+    def abort(self) -> None:
+        """Stops the encoder after a failure (the partial file is left as it is)."""
+        try:
+            self._writer.close()
+        except Exception:  # the encoder may already be gone
+            pass
+
+    def close(self, t_end: float) -> int:
+        """Writes the hold frames, finishes the file, returns the number of frames."""
+        for _ in range(int(round(self.hold_s * self.fps))):
+            self.grab(t_end)
+        self._writer.close()
+        return self.frames
+
+
+def expected_frames(t_end: float, fps: int, speedup: float, hold_s: float) -> int:
+    """Frames a demo of a mission ending at ``t_end`` [s] writes."""
+    interval = speedup / fps
+    return int(math.floor(t_end / interval + 1e-9)) + 1 + int(round(hold_s * fps))
+
+
+def record(task: str, planner: str, seed: int, out: str, budget: float | None = None, size=(1280, 720),
+           fps: int = 10, speedup: float = 4.0, crf: int = 30, hold_s: float = 1.0,
+           progress: bool = True) -> tuple[EpisodeLog, int]:
+    """Flies ``planner`` on ``task`` and writes the video; returns the episode log and frame count."""
+    env = make_sim_env(task, budget)
+    video: dict[str, DemoVideo] = {}
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=float(env.config.mission.budget_s), unit="s", desc=f"{planner} seed {seed}",
+                   bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s mission [{elapsed}<{remaining}]")
+
+    def on_reset(e) -> None:
+        v = DemoVideo(e, out, f"{planner}  |  {task}  |  seed {seed}", size, fps, speedup, crf, hold_s, bar)
+        e.mission.step_hooks.append(v.hook)
+        v.hook(e.mission)  # the frame at t = 0
+        video["v"] = v
+
+    try:
+        log = fly_episode(env, planner, seed, on_reset)
+        n = video["v"].close(env.mission.time_s)
+    except BaseException:
+        if "v" in video:
+            video["v"].abort()
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+        env.close()
+    return log, n
+
+
+def compare_plot(logs: list[EpisodeLog], budget: float, report_times, path: str, title: str) -> None:
+    """The paper's comparison: trace(P) over the ROI against mission time, one line per planner."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.0, 4.2), dpi=120)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    for log in logs:
+        t = np.array([r.time_s for r in log.history] + [log.metrics["time_s"]])
+        tr = np.array([r.trace_roi for r in log.history] + [log.history[-1].trace_roi])
+        reds = []
+        for rt in report_times:
+            if rt <= budget + 1e-9:
+                rec = [r for r in log.history if r.time_s <= rt + 1e-9][-1]
+                reds.append(f"{rec.uncertainty_reduction_pct:.0f}")
+        ax.plot(t, tr, drawstyle="steps-post", lw=2, label=f"{log.planner} (reduction {'/'.join(reds)} %)")
+    for rt in report_times:
+        if rt <= budget + 1e-9:
+            ax.axvline(rt, color="grey", lw=0.8, ls=":")
+    ax.set_xlim(0, budget)
+    ax.set_ylim(bottom=0)
+    ax.set_xlabel("mission time [s]")
+    ax.set_ylabel("trace(P) over the ROI")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    """Runs ``ipp-bench demo``; returns the process exit code."""
+    try:
+        size = _parse_size(args.size)
+        if args.fps < 1 or args.speedup <= 0 or args.hold < 0:
+            raise ValueError("--fps must be >= 1, --speedup > 0 and --hold >= 0")
+        out = Path(args.out)
+        if out.suffix.lower() != ".mp4":
+            raise ValueError(f"--out {args.out!r} is invalid: the demo writes an .mp4")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        log, frames = record(args.task, args.planner, args.seed, str(out), args.budget, size, args.fps,
+                             args.speedup, args.crf, args.hold, progress=not args.no_progress)
+    except (ValueError, ImportError, RuntimeError) as err:
+        print(f"ipp-bench demo: error: {err}", file=sys.stderr)
+        return 2
+    m = log.metrics
+    print(f"{out}: {frames} frames, {size[0]}x{size[1]} @ {args.fps} fps; {args.planner} flew "
+          f"{m['time_s']:.2f} s ({m['distance_m']:.0f} m, {log.decisions} decisions): uncertainty reduction "
+          f"{m['uncertainty_reduction_pct']:.1f} %, RMSE reduction {m['rmse_reduction_pct']:.1f} %")
+    if args.compare:
+        try:
+            env = make_sim_env(args.task, args.budget)
+            try:
+                other = fly_episode(env, args.compare, args.seed)
+            finally:
+                env.close()
+            png = args.compare_out or str(out.with_name(out.stem + "_compare.png"))
+            cfg = env.config.mission
+            compare_plot([log, other], cfg.budget_s, cfg.report_times, png,
+                         f"{args.task}, seed {args.seed}")
+        except (ValueError, ImportError, RuntimeError) as err:
+            print(f"ipp-bench demo: error: {err}", file=sys.stderr)
+            return 2
+        o = other.metrics
+        print(f"{png}: {args.compare} flew {o['time_s']:.1f} s: uncertainty reduction "
+              f"{o['uncertainty_reduction_pct']:.1f} %, RMSE reduction {o['rmse_reduction_pct']:.1f} %")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m ipp_bench.sim.demo`` (the same as ``ipp-bench demo``)."""
+    parser = add_demo_arguments(argparse.ArgumentParser(prog="ipp-bench demo", description=__doc__.splitlines()[0]))
+    return run_demo(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

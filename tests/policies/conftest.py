@@ -1,0 +1,30 @@
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+
+@pytest.fixture(autouse=True)
+def _torch_seed():
+    torch.manual_seed(0)
+
+
+def fake_obs(n_nodes: int = 60, k: int = 20, pe_dim: int = 32, batch: int = 4, seed: int = 0) -> dict:
+    """A batch of random observations with the shapes of GraphIPPEnv's."""
+    g = torch.Generator().manual_seed(seed)
+    cur = torch.randint(0, n_nodes, (batch, 1), generator=g)
+    mask = torch.rand(batch, k, generator=g) > 0.3
+    mask[:, 0] = True
+    return {
+        "node_features": torch.rand(batch, n_nodes, 5, generator=g),
+        "pos_encoding": torch.randn(batch, n_nodes, pe_dim, generator=g) * 0.1,
+        "current_node": cur,
+        "neighbours": torch.randint(0, n_nodes, (batch, k), generator=g),
+        "action_mask": mask.to(torch.int8),
+        "budget": torch.rand(batch, 1, generator=g),
+    }
+
+
+def to_batch(obs: dict) -> dict:
+    """One env observation (numpy) -> a batch of one (torch)."""
+    return {key: torch.as_tensor(np.asarray(v)).unsqueeze(0) for key, v in obs.items()}

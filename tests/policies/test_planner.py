@@ -1,0 +1,114 @@
+"""The `attention` planner: checkpoint loading, masking, errors."""
+
+import numpy as np
+import pytest
+import torch
+
+gym = pytest.importorskip("gymnasium")
+
+import ipp_bench.envs  # noqa: E402,F401
+from ipp_bench.planners import make_planner  # noqa: E402
+from ipp_bench.planners.base import RobotView  # noqa: E402
+from ipp_bench.policies.checkpoint import (  # noqa: E402
+    SHIPPED_CHECKPOINT,
+    CheckpointError,
+    load_checkpoint,
+    save_checkpoint,
+)
+from ipp_bench.policies.network import AttentionNet, NetConfig  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def small_ckpt(tmp_path_factory):
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("ckpt") / "small.pt"
+    save_checkpoint(AttentionNet(NetConfig(embed_dim=32, n_heads=2, ff_dim=64)), path, meta={"note": "test"})
+    return path
+
+
+def _fly(planner, task="ipp_bench/Grid15Eval-v0", seed=0, steps=40):
+    env = gym.make(task)
+    obs, _ = env.reset(seed=seed)
+    planner.reset(RobotView(env.unwrapped), seed)
+    actions = []
+    for _ in range(steps):
+        mask = env.unwrapped.action_masks()
+        a = planner.act(obs)
+        assert mask[a], "the planner chose a masked neighbour"
+        actions.append(a)
+        obs, _, term, _, _ = env.step(a)
+        if term:
+            break
+    return actions
+
+
+def test_checkpoint_round_trip(small_ckpt):
+    net, meta = load_checkpoint(small_ckpt)
+    assert meta == {"note": "test"} and net.cfg.embed_dim == 32
+    assert small_ckpt.with_suffix(".json").is_file()
+
+
+def test_planner_argmax_is_deterministic_and_sampling_is_seeded(small_ckpt):
+    det = make_planner(f"attention:checkpoint={small_ckpt}")
+    assert _fly(det, seed=1) == _fly(det, seed=1)
+    smp = make_planner(f"attention:checkpoint={small_ckpt},sample=true")
+    assert smp.config.sample is True
+    a, b = _fly(smp, seed=2), _fly(smp, seed=2)
+    assert a == b
+
+
+def test_planner_single_valid_neighbour(small_ckpt):
+    planner = make_planner(f"attention:checkpoint={small_ckpt},sample=true")
+    env = gym.make("ipp_bench/Grid15-v0")
+    obs, _ = env.reset(seed=0)
+    planner.reset(RobotView(env.unwrapped), 0)
+    for j in (3, 17):
+        only = {**obs, "action_mask": np.eye(20, dtype=np.int8)[j]}
+        assert all(planner.act(only) == j for _ in range(30))
+        p = planner.probabilities(only)
+        assert p[j] == 1.0 and p.sum() == pytest.approx(1.0)
+
+
+def test_planner_runs_on_the_larger_grid(small_ckpt):
+    _fly(make_planner(f"attention:checkpoint={small_ckpt}"), task="ipp_bench/Grid20Eval-v0", steps=10)
+
+
+def test_missing_checkpoint_says_what_was_expected(tmp_path):
+    with pytest.raises(CheckpointError, match="not found: expected an ipp-bench attention checkpoint"):
+        make_planner(f"attention:checkpoint={tmp_path / 'nope.pt'}")
+
+
+def test_incompatible_checkpoints_are_refused(tmp_path, small_ckpt):
+    junk = tmp_path / "junk.pt"
+    torch.save({"weights": torch.zeros(3)}, junk)
+    with pytest.raises(CheckpointError, match="format"):
+        load_checkpoint(junk)
+    text = tmp_path / "text.pt"
+    text.write_text("not a checkpoint")
+    with pytest.raises(CheckpointError, match="could not be read"):
+        load_checkpoint(text)
+    payload = torch.load(small_ckpt, weights_only=True)
+    payload["net_config"]["embed_dim"] = 64  # weights no longer fit
+    bad = tmp_path / "bad.pt"
+    torch.save(payload, bad)
+    with pytest.raises(CheckpointError, match="does not fit"):
+        load_checkpoint(bad)
+    with pytest.raises(CheckpointError, match="SB3 model archive"):
+        load_checkpoint(tmp_path / "model.zip") if (tmp_path / "model.zip").write_text("x") else None
+
+
+def test_observation_mismatch_is_reported(small_ckpt):
+    planner = make_planner(f"attention:checkpoint={small_ckpt}")
+    env = gym.make("ipp_bench/Grid15-v0", pe_dim=16)
+    obs, _ = env.reset(seed=0)
+    planner.reset(RobotView(env.unwrapped), 0)
+    with pytest.raises(CheckpointError, match="pe_dim=32"):
+        planner.act(obs)
+
+
+def test_shipped_checkpoint_loads_and_acts():
+    assert SHIPPED_CHECKPOINT.is_file(), f"the trained checkpoint must ship at {SHIPPED_CHECKPOINT}"
+    assert SHIPPED_CHECKPOINT.stat().st_size < 5 * 2**20
+    net, meta = load_checkpoint()
+    assert "command" in meta and meta["command"].startswith("ipp-bench train")
+    _fly(make_planner("attention"), steps=20)

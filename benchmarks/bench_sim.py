@@ -10,6 +10,7 @@ Figures:
 - downward camera at 128 x 128 and 256 x 256: time per frame of rendering alone, of render +
   HSV threshold, and of the whole read-out (render, threshold, projection to the grid, sensor
   binning and noise), at 8 m and 14 m over a weed field (target: >= 100 frames/s at 128 x 128);
+- accuracy of the camera's per-cell weed fractions against the ground truth (RMSE, bias);
 - physics: bare ``mj_step`` and controlled steps (cascaded controller + ``mj_step``) per second;
 - full missions of ``ipp_bench/MuJoCoWeed15-v0`` (200 s budget): wall time and how much faster than
   real time they run, with and without the planner's decision time (target: >= 5x).
@@ -85,6 +86,29 @@ def bench_camera(frames: int) -> None:
         world.close()
 
 
+def bench_accuracy(fields: int) -> None:
+    grid, sensor_cfg = GridConfig(), SensorConfig()
+    print(f"\n## Camera weed fractions against the ground truth ({fields} weed_patches fields x 25 positions)")
+    print(f"{'size':>9} {'alt':>5} | {'cells':>6} | {'RMSE':>6} | {'bias':>7} | {'max |err|':>9}")
+    xs = np.arange(3.75, 37.5, 7.5)
+    for size in (128, 256):
+        world = WeedWorld(grid, sensor_cfg, cfg=SimConfig(image_size=size))
+        for alt in (8.0, 14.0):
+            errs = []
+            for seed in range(fields):
+                truth = make_field("weed_patches", grid, np.random.default_rng(seed))
+                world.load_field(truth, 1000 + seed)
+                for x in xs:
+                    for y in xs:
+                        world.scene.reset([x, y, alt])
+                        r = world.camera()
+                        errs.append(r.fraction[r.seen] - truth.reshape(-1)[r.seen])
+            e = np.concatenate(errs)
+            print(f"{size:>4}x{size:<4} {alt:4.0f}m | {e.size:6d} | {np.sqrt(np.mean(e * e)):6.3f} | "
+                  f"{e.mean():+7.3f} | {np.abs(e).max():9.3f}")
+        world.close()
+
+
 def bench_physics(steps: int) -> None:
     world = WeedWorld(GridConfig(), SensorConfig())
     m, d = world.scene.model, world.scene.data
@@ -144,12 +168,14 @@ def main() -> None:
     parser.add_argument("--planners", nargs="+", default=["random", "coverage", "greedy"],
                         help="planners flown for the real-time factor")
     parser.add_argument("--seeds", type=int, default=2, help="missions per planner")
+    parser.add_argument("--fields", type=int, default=4, help="fields for the threshold accuracy")
     args = parser.parse_args()
     limit_blas_threads()
     print(f"# bench_sim: mujoco {mujoco.__version__}, MUJOCO_GL={os.environ.get('MUJOCO_GL')}, "
           f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"load {os.getloadavg()[0]:.1f}")
     bench_camera(args.frames)
+    bench_accuracy(args.fields)
     bench_physics(args.steps)
     bench_missions(args.planners, args.seeds)
 

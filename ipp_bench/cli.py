@@ -69,8 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
                                     "Resumable: rerun the same command to complete an interrupted run.")
     lb.add_argument("--tasks", nargs="+", metavar="TASK", help="task ids (default: all tagged 'benchmark')")
     lb.add_argument("--planners", nargs="+", metavar="SPEC",
-                    help="planner specs such as greedy or mcts:simulations=50 (default: all registered)")
-    lb.add_argument("--episodes", type=int, help="episodes per task and planner (default 20; --quick: 4)")
+                    help="planner specs such as greedy or mcts:simulations=50 (default: every registered planner that can be built here; the others are named)")
+    lb.add_argument("--episodes", type=int, help="episodes per task and planner (default 20; --quick: 3)")
     lb.add_argument("--seed", type=int, default=0, help="base seed the episode seeds derive from (default 0)")
     lb.add_argument("--workers", type=int, help="parallel workers (default: the CPUs available)")
     lb.add_argument("--backend", choices=("serial", "process", "ray"),
@@ -141,8 +141,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from .eval.executors import check_executor_args, default_backend
-    from .eval.leaderboard import (ResultsMismatchError, describe_quick, make_plan, parse_env_overrides,
-                                   run_leaderboard)
+    from .eval.leaderboard import ResultsMismatchError, describe_quick, make_plan, parse_env_overrides, run_leaderboard
 
     if args.quick:
         print(describe_quick(), flush=True)

@@ -124,3 +124,24 @@ def test_covariance_stays_symmetric_psd_over_many_updates():
         b.update_local(cells, np.full((1, 4), 0.25), rng.normal(size=1), np.array([0.04]))
     np.testing.assert_array_equal(b.cov, b.cov.T)  # just re-symmetrised
     assert np.linalg.eigvalsh(b.cov).min() > -1e-12
+
+
+def test_batched_trace_reductions_match_one_by_one():
+    from ipp_bench.belief import LegBatch, gain_factor, trace_reductions
+
+    rng = np.random.default_rng(5)
+    b = GPBelief.from_grid((6, 6))
+    b.update(np.eye(36)[:3], rng.normal(size=3), np.full(3, 0.04))
+    legs = []
+    for m in (1, 4, 2):
+        cells = np.sort(rng.choice(36, size=5, replace=False))
+        legs.append((cells, rng.uniform(0, 1, (m, 5)), rng.uniform(0.01, 0.1, m)))
+    legs.insert(1, None)
+    roi = rng.random(36) < 0.5
+    got = trace_reductions(b.cov, LegBatch(legs), roi)
+    for leg, g in zip(legs, got):
+        if leg is None:
+            assert g == 0.0
+            continue
+        A = gain_factor(b.cov, *leg)[0]
+        assert g == pytest.approx(np.sum(A[roi] ** 2), rel=1e-10)

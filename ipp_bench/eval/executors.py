@@ -19,7 +19,7 @@ import multiprocessing
 import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from typing import Any, TypeVar
+from typing import TypeVar
 
 from .._threads import limit_blas_threads
 
@@ -38,15 +38,9 @@ def available_cpus() -> int:
 
 
 def init_worker() -> None:
-    """Load the BLAS libraries the core uses, then limit them to one thread.
-
-    ``limit_blas_threads`` can only limit libraries already loaded (and applies once per process),
-    so numpy and scipy.linalg (each with its own OpenBLAS) are imported first: called in a fresh
-    worker before they were loaded, it left scipy's BLAS at 2 threads and greedy 25x slower (measured).
-    """
-    import numpy  # noqa: F401
-    import scipy.linalg  # noqa: F401
-
+    """Per-worker setup: one BLAS thread (numpy's and scipy's OpenBLAS both; measured in a fresh
+    forkserver worker before ``limit_blas_threads`` loaded scipy.linalg itself, scipy's BLAS kept
+    2 threads and greedy decisions were many times slower)."""
     limit_blas_threads()
 
 
@@ -140,7 +134,7 @@ class RayExecutor:
         if ray.is_initialized():
             self.where = "the Ray already initialised in this process"
         elif self.address:
-            ray.init(address=self.address, include_dashboard=False, log_to_driver=False)
+            ray.init(address=self.address, log_to_driver=False)
             self._owns = True
             self.where = f"the Ray cluster at {self.address}"
         else:
@@ -214,4 +208,4 @@ def make_executor(backend: str, workers: int | None = None, address: str | None 
     return RayExecutor(workers, address)
 
 
-__all__ = ["BACKENDS", "check_executor_args", "default_backend", "SerialExecutor", "ProcessExecutor", "RayExecutor", "make_executor", "available_cpus"]
+__all__ = ["BACKENDS", "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args", "default_backend", "make_executor"]

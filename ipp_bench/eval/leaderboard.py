@@ -59,10 +59,13 @@ _FLOAT_COLUMNS = tuple(c for c in COLUMNS if c not in KEY_COLUMNS + _INT_COLUMNS
 DEFAULT_EPISODES = 20
 DEFAULT_TAG = "benchmark"
 # --quick: few episodes and cheaper look-ahead (spec overrides, applied unless the spec sets the
-# key itself). Sized so that all benchmark tasks x all planners fit 5 minutes on 2 cores.
-QUICK_EPISODES = 4
+# key itself). Sized so that all benchmark tasks x all planners fit 5 minutes on 2 busy cores:
+# MCTS costs ~20 ms per simulation and ~90 decisions per 200 s episode, CMA-ES ~2.4 ms per
+# evaluation and ~40 decisions (measured at load 5 on 2 cores).
+QUICK_EPISODES = 3
 QUICK_OVERRIDES: dict[str, dict[str, Any]] = {
-    "mcts": {"simulations": 20},
+    "mcts": {"simulations": 8},
+    "cmaes": {"max_evals": 36},
 }
 NAMESPACE = "ipp_bench/"
 
@@ -188,8 +191,9 @@ class Plan:
     quick: bool = False
 
     def fingerprint(self) -> dict[str, Any]:
-        """The arguments that decide the numbers (order-insensitive where order does not matter)."""
-        return {
+        """The arguments that decide the numbers (order-insensitive where order does not matter), as
+        JSON would read them back (tuples become lists), so that a stored one compares equal."""
+        return json.loads(json.dumps({
             "tasks": sorted(self.tasks),
             "planners": sorted(self.planners),
             "episodes": self.episodes,
@@ -197,12 +201,19 @@ class Plan:
             "env_overrides": {k: self.env_overrides[k] for k in sorted(self.env_overrides)},
             "task_configs": {t: _config_digest(t, self.env_overrides) for t in sorted(self.tasks)},
             "seed_scheme": SEED_SCHEME,
-        }
+        }, default=str))
 
     def jobs(self) -> list[EpisodeJob]:
         """Every episode, seed-major (an interrupted run has all planners on its first seeds)."""
-        return [EpisodeJob(t, p, s, tuple(sorted(self.env_overrides.items())))
-                for s in self.seeds for t in self.tasks for p in self.planners]
+        overrides = tuple((k, _freeze(v)) for k, v in sorted(self.env_overrides.items()))
+        return [EpisodeJob(t, p, s, overrides) for s in self.seeds for t in self.tasks for p in self.planners]
+
+
+def _freeze(value: Any) -> Any:
+    """JSON lists as tuples (hashable; the configs hold tuples anyway)."""
+    if isinstance(value, list):
+        return tuple(_freeze(v) for v in value)
+    return value
 
 
 def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None = None,
@@ -456,7 +467,10 @@ class ResultsStore:
             _atomic_write(self.csv_path, format_header())
             return
         text = self.csv_path.read_text()
-        rows, notes = _parse_text(text)
+        try:
+            rows, notes = _parse_text(text)
+        except ValueError as err:  # another header: not a results file of this version
+            raise ResultsMismatchError(f"{self.csv_path}: {err}; pass a new --out DIR (or delete {self.dir})") from None
         expected = {t: report_times(t, self.plan.env_overrides) for t in self.plan.tasks}
         wanted = {job.key for job in self.plan.jobs()}
         groups: dict[tuple[str, str, int], dict[float, dict[str, Any]]] = {}
@@ -634,7 +648,26 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
     return Summary(Path(out_dir), len(jobs), skipped, len(todo), wall, files)
 
 
-__all__ = ["COLUMNS", "TIMING_COLUMNS", "DEFAULT_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES", "Plan",
-           "EpisodeJob", "ResultsStore", "ResultsMismatchError", "Summary", "make_plan", "run_leaderboard",
-           "run_job", "episode_seeds", "canonical_spec", "parse_env_overrides", "default_planners",
-           "read_results", "report_times", "resolve_task", "describe_quick"]
+__all__ = [
+    "COLUMNS",
+    "DEFAULT_EPISODES",
+    "QUICK_EPISODES",
+    "QUICK_OVERRIDES",
+    "TIMING_COLUMNS",
+    "EpisodeJob",
+    "Plan",
+    "ResultsMismatchError",
+    "ResultsStore",
+    "Summary",
+    "canonical_spec",
+    "default_planners",
+    "describe_quick",
+    "episode_seeds",
+    "make_plan",
+    "parse_env_overrides",
+    "read_results",
+    "report_times",
+    "resolve_task",
+    "run_job",
+    "run_leaderboard",
+]

@@ -183,12 +183,14 @@ def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = Fa
     parts = ["# ipp-bench leaderboard", ""]
     if command:
         parts += [f"Made with `{command}`" + (" (quick mode: few episodes, cheaper look-ahead)." if quick else "."), ""]
-    parts += [
+    legend = (
         f"Mean over {n_text} episodes per task and planner (every planner meets the same episode seeds), "
         f"with the {LEVEL:.0%} percentile bootstrap interval of the mean in brackets ({N_RESAMPLES} resamples). "
         "Reductions are relative to the prior, over the region of interest. Bold: the best per task and column "
         "(highest reduction, lowest runtime). Runtime per decision: wall time of the planner's decision, "
-        "mean over each episode's decisions, then over episodes.",
+        "mean over each episode's decisions, then over episodes.")
+    parts += [
+        legend,
         "",
         markdown_table(agg),
         "## Absolute values at the end of the mission",
@@ -244,7 +246,7 @@ def plot_curves(agg: Aggregate, task: str, path: str | Path) -> Path:
 
 def plot_runtime(agg: Aggregate, path: str | Path) -> Path:
     """Runtime per decision per planner (bars per task, log scale, 95% interval whiskers)."""
-    fig = _figure(figsize=(max(6.0, 1.2 * len(agg.planners) * max(1, len(agg.tasks)) / 1.5), 4),
+    fig = _figure(figsize=(max(7.0, 0.8 * len(agg.planners) * max(1, len(agg.tasks))), 4),
                   layout="constrained")
     ax = fig.subplots()
     width = 0.8 / max(1, len(agg.tasks))
@@ -262,9 +264,9 @@ def plot_runtime(agg: Aggregate, path: str | Path) -> Path:
     ax.set_xticks(x, agg.planners, rotation=20, ha="right")
     ax.set_yscale("log")
     ax.set_ylabel("runtime per decision [s]")
-    ax.grid(axis="y", alpha=0.3, which="both")
+    ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize="small")
-    ax.set_title("Runtime per decision (mean over episodes, 95% bootstrap interval)")
+    ax.set_title("Runtime per decision: mean over episodes, 95% bootstrap interval", fontsize="medium")
     path = Path(path)
     fig.savefig(path, dpi=110)
     return path
@@ -293,5 +295,12 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
     return [md, *written]
 
 
-__all__ = ["bootstrap_ci", "Aggregate", "markdown_table", "markdown_report", "plot_curves", "plot_runtime",
-           "write_report"]
+__all__ = [
+    "Aggregate",
+    "bootstrap_ci",
+    "markdown_report",
+    "markdown_table",
+    "plot_curves",
+    "plot_runtime",
+    "write_report",
+]

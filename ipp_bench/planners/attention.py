@@ -4,6 +4,11 @@ Loads the checkpoint shipped in the package (``ipp_bench/policies/checkpoints/at
 or ``checkpoint=PATH`` (an ``export.pt`` of an ``ipp-bench train`` run), and picks the neighbour
 with the highest probability (``sample=true``: draws from the policy instead, seeded per episode).
 Needs torch (``pip install "ipp-bench[train]"``); the planner registry imports it lazily.
+
+A decision is one forward pass of a small network (about 1 ms at 450 nodes): torch's intra-op
+threads only add hand-over cost there, and they oversubscribe the CPU when the leaderboard runs
+episodes in parallel processes, so the planner sets torch to one thread by default (``threads=0``
+leaves torch's setting alone), as ``ipp_bench._threads`` does for BLAS.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ class AttentionConfig:
     checkpoint: str = ""  # path of an exported checkpoint (.pt); "" = the shipped one
     sample: bool = False  # draw the action from the policy instead of taking the argmax
     device: str = "cpu"  # torch device of the network
-    threads: int = 0  # torch intra-op threads to set; 0 = leave torch's setting alone
+    threads: int = 1  # torch intra-op threads to set; 0 = leave torch's setting alone
 
     def __post_init__(self) -> None:
         if isinstance(self.sample, str):  # from "attention:sample=true"

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..belief import LegBatch, trace_reductions
+from ..sensor import stack
 from .base import GraphPlanner
 
 
@@ -20,21 +22,29 @@ class GreedyPlanner(GraphPlanner):
     name = "greedy"
     Config = GreedyConfig
 
+    def reset(self, view, seed):
+        super().reset(view, seed)
+        self._batches: dict[int, LegBatch] = {}
+
+    def _batch(self, node: int) -> LegBatch:
+        """The measurements of the legs to every neighbour of ``node`` (cached per episode)."""
+        batch = self._batches.get(node)
+        if batch is None:
+            rm = self.view.roadmap
+            legs = []
+            for target in rm.neighbours[node]:
+                obs = self.view.leg_observations(rm.positions[node], rm.positions[target])
+                legs.append(stack(obs) if obs else None)
+            batch = self._batches[node] = LegBatch(legs)
+        return batch
+
     def scores(self, obs) -> np.ndarray:
         """Predicted ROI trace reduction per second for each neighbour (-inf where masked)."""
         view = self.view
-        roadmap = view.roadmap
         node = int(obs["current_node"][0])
-        here = roadmap.positions[node]
-        belief = view.belief
-        roi = view.belief_roi()
-        before = view.roi_trace(belief.variance, roi)
-        out = np.full(roadmap.k, -np.inf)
-        for a in np.flatnonzero(obs["action_mask"]):
-            target = roadmap.positions[roadmap.neighbours[node, a]]
-            var = view.predict_variance(belief, view.leg_observations(here, target))
-            out[a] = (before - view.roi_trace(var, roi)) / roadmap.costs[node, a]
-        return out
+        gains = trace_reductions(view.belief.cov, self._batch(node), view.belief_roi())
+        scores = gains / view.roadmap.costs[node]
+        return np.where(obs["action_mask"].astype(bool), scores, -np.inf)
 
     def act(self, obs):
         return int(np.argmax(self.scores(obs)))

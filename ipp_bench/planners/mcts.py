@@ -4,18 +4,19 @@ The search runs on the roadmap with the belief covariance alone (it does not dep
 measured values), so it predicts information gain exactly under the GP model without touching the
 real episode or the ground truth:
 
-- state: (node, covariance after the planned measurements, remaining budget);
+- state: (node, covariance after the planned measurements, remaining budget, time since the root);
 - reward of a move: the reduction of Tr(P) over the belief ROI of the decision (fixed for the
-  search), in units of the best one-step reduction at the root; moves last different times, so
-  the discount is ``gamma`` per mean edge duration (a move of cost c is discounted by
-  ``gamma ** (c / mean cost)``) and the look-ahead ends at ``horizon_s`` of flight (or
-  ``max_depth`` moves): short and long moves compete on gain per time, as the budget demands;
-- progressive widening (Sunberg & Kochenderfer 2018): a state may have ``|C| <= k N^alpha``
-  children, added in decreasing order of the one-step gain per second;
+  search), in units of the best one-step reduction at the root;
+- moves last different times, so the look-ahead is a fixed flight time ``horizon_s`` (the move
+  that crosses it counts pro rata) and the discount is ``gamma`` per ``discount_period_s`` of
+  flight: short and long moves compete on gain per time, as the budget demands. (A horizon in
+  moves instead favours long moves; that made an earlier version lose to greedy.)
+- progressive widening (Sunberg & Kochenderfer 2018): a state has at most ``pw_k N^pw_alpha``
+  children, added in decreasing order of one-step gain per second;
 - UCT selection among the children; the most visited root child is flown;
 - rollout (Choudhury et al. 2020): the next move is drawn with probability proportional to
-  ``exp(lambda * (g / c) / max(g / c))`` (gain per second, scaled by the best candidate so that
-  ``lambda`` does not depend on the map), for ``rollout_depth`` moves or until the budget ends.
+  ``exp(lambda * (g / c) / max(g / c))`` (gain per second scaled by the best candidate, so that
+  ``lambda`` does not depend on the map) until the horizon or the budget ends.
 
 A search is limited by ``simulations`` per decision (deterministic; the default) or additionally
 by ``time_limit_s`` of wall time per decision (then results depend on the machine).
@@ -29,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..belief import downdate_inplace, gain_factor
+from ..belief import LegBatch, downdate_inplace, gain_factor, trace_reductions
 from ..sensor import stack
 from .base import GraphPlanner
 
@@ -41,25 +42,24 @@ class MCTSConfig:
     Attributes:
         simulations: simulations per decision.
         time_limit_s: optional wall-clock limit per decision [s] (None: simulations only).
-        horizon_s: flight time looked ahead (tree + rollout) [s].
-        max_depth: moves looked ahead at most (tree + rollout).
-        rollout_depth: moves of the cost-benefit rollout from a new leaf at most.
-        gamma: discount per mean edge duration.
-        exploration: UCT constant c in Q + c sqrt(ln N / n).
+        horizon_s: flight time looked ahead, tree and rollout together [s].
+        gamma: discount per ``discount_period_s`` of flight.
+        discount_period_s: flight time over which ``gamma`` applies once [s].
+        exploration: UCT constant c in Q + c sqrt(ln N / n) (rewards are in units of the best
+            one-step gain at the root).
         pw_k, pw_alpha: progressive widening, children while |C| <= pw_k N^pw_alpha.
         rollout_lambda: sharpness of the cost-benefit rollout.
     """
 
-    simulations: int = 120
+    simulations: int = 100
     time_limit_s: float | None = None  # [s]
-    horizon_s: float = 16.0  # [s]
-    max_depth: int = 10
-    rollout_depth: int = 6
+    horizon_s: float = 12.0  # [s]
     gamma: float = 0.95
-    exploration: float = 1.0
-    pw_k: float = 4.0
-    pw_alpha: float = 0.75
-    rollout_lambda: float = 5.0
+    discount_period_s: float = 2.0  # [s]
+    exploration: float = 0.5
+    pw_k: float = 2.0
+    pw_alpha: float = 0.5
+    rollout_lambda: float = 8.0
 
     def __post_init__(self):
         def bad(name, valid):
@@ -70,12 +70,10 @@ class MCTSConfig:
             bad("time_limit_s", "None or a number > 0 [s]")
         if not (math.isfinite(self.horizon_s) and self.horizon_s > 0):
             bad("horizon_s", "a number > 0 [s]")
-        if not (isinstance(self.max_depth, int) and self.max_depth >= 1):
-            bad("max_depth", "an integer >= 1")
-        if not (isinstance(self.rollout_depth, int) and self.rollout_depth >= 0):
-            bad("rollout_depth", "an integer >= 0")
         if not 0.0 < self.gamma <= 1.0:
             bad("gamma", "a number in (0, 1]")
+        if not (math.isfinite(self.discount_period_s) and self.discount_period_s > 0):
+            bad("discount_period_s", "a number > 0 [s]")
         if not (math.isfinite(self.exploration) and self.exploration >= 0):
             bad("exploration", "a number >= 0")
         if not (math.isfinite(self.pw_k) and self.pw_k >= 1):
@@ -94,8 +92,8 @@ class _State:
         self.cov = cov
         self.remaining = remaining  # [s] of budget
         self.elapsed = elapsed  # [s] flown since the root
-        self.order: np.ndarray | None = None  # affordable actions, best one-step gain/s first
-        self.gains: np.ndarray | None = None  # one-step trace reduction per action
+        self.order: np.ndarray | None = None  # playable actions, best one-step gain/s first
+        self.gains: np.ndarray | None = None  # one-step reward per action
         self.children: dict[int, list] = {}  # action -> [child, reward, discount, visits, value sum]
         self.visits = 0
 
@@ -111,60 +109,62 @@ class MCTSPlanner(GraphPlanner):
 
     def reset(self, view, seed):
         super().reset(view, seed)
-        self._legs: dict[tuple[int, int], tuple] = {}
-        costs = view.roadmap.costs
-        self._discount = self.config.gamma ** (costs / costs.mean())  # per (node, action)
+        self._legs: dict[tuple[int, int], tuple | None] = {}
+        self._batches: dict[int, LegBatch] = {}
 
     # -- the model --------------------------------------------------------------------------
     def _leg(self, node: int, action: int):
         key = (node, action)
-        leg = self._legs.get(key)
-        if leg is None:
+        if key not in self._legs:
             rm = self.view.roadmap
             obs = self.view.leg_observations(rm.positions[node], rm.positions[rm.neighbours[node, action]])
-            leg = stack(obs) if obs else None
-            self._legs[key] = leg
-        return leg
+            self._legs[key] = stack(obs) if obs else None
+        return self._legs[key]
+
+    def _batch(self, node: int) -> LegBatch:
+        batch = self._batches.get(node)
+        if batch is None:
+            batch = LegBatch([self._leg(node, a) for a in range(self.view.roadmap.k)])
+            self._batches[node] = batch
+        return batch
 
     def _expand_info(self, state: _State) -> None:
-        """Affordable actions and their one-step gains, best gain per second first."""
+        """Playable actions and their one-step rewards, best reward per second first."""
         rm = self.view.roadmap
         costs = rm.costs[state.node]
-        if state.elapsed >= self.config.horizon_s:
-            actions = np.zeros(0, dtype=np.int64)
-        else:
-            actions = np.flatnonzero(costs <= state.remaining + 1e-9)
-        gains = np.zeros(rm.k)
-        for a in actions:
-            leg = self._leg(state.node, a)
-            if leg is not None:
-                A = gain_factor(state.cov, *leg)[0]
-                gains[a] = np.einsum("ij,ij->", A[self._roi], A[self._roi])
-        state.gains = gains / self._unit
+        if state.elapsed >= self.config.horizon_s - 1e-9:
+            state.order = np.zeros(0, dtype=np.int64)
+            return
+        actions = np.flatnonzero(costs <= state.remaining + 1e-9)
+        state.gains = trace_reductions(state.cov, self._batch(state.node), self._roi) / self._unit
         rate = state.gains[actions] / costs[actions]
         state.order = actions[np.lexsort((actions, -rate))]
 
-    def _transition(self, state: _State, action: int) -> tuple[_State, float]:
+    def _transition(self, state: _State, action: int) -> tuple[_State, float, float]:
+        """(next state, reward, discount): the move crossing the horizon counts pro rata."""
         rm = self.view.roadmap
         leg = self._leg(state.node, action)
         cov = state.cov
         if leg is not None:
             cov = cov.copy()
             downdate_inplace(cov, gain_factor(cov, *leg)[0])
-        cost = rm.costs[state.node, action]
+        cost = float(rm.costs[state.node, action])
+        cfg = self.config
+        share = min(1.0, (cfg.horizon_s - state.elapsed) / cost)
         child = _State(int(rm.neighbours[state.node, action]), cov, state.remaining - cost, state.elapsed + cost)
-        return child, float(state.gains[action])
+        discount = cfg.gamma ** (cost / cfg.discount_period_s)
+        return child, share * float(state.gains[action]), discount
 
     # -- search -----------------------------------------------------------------------------
-    def _rollout(self, state: _State, depth: int) -> float:
+    def _rollout(self, state: _State) -> float:
         cfg = self.config
-        total, discount = 0.0, 1.0
         rm = self.view.roadmap
-        for _ in range(min(cfg.rollout_depth, cfg.max_depth - depth)):
+        total, discount = 0.0, 1.0
+        while True:
             self._expand_info(state)
-            if state.order.size == 0:
-                break
             acts = state.order
+            if acts.size == 0:
+                break
             rate = state.gains[acts] / rm.costs[state.node, acts]
             top = rate.max()
             if top <= 0:
@@ -172,16 +172,13 @@ class MCTSPlanner(GraphPlanner):
             logits = cfg.rollout_lambda * rate / top
             p = np.exp(logits - logits.max())
             a = int(self.rng.choice(acts, p=p / p.sum()))
-            d = self._discount[state.node, a]
-            state, r = self._transition(state, a)
+            state, r, d = self._transition(state, a)
             total += discount * r
             discount *= d
         return total
 
-    def _simulate(self, state: _State, depth: int) -> float:
+    def _simulate(self, state: _State) -> float:
         cfg = self.config
-        if depth >= cfg.max_depth:
-            return 0.0
         if state.order is None:
             self._expand_info(state)
         if state.order.size == 0:
@@ -189,19 +186,18 @@ class MCTSPlanner(GraphPlanner):
         state.visits += 1
         if len(state.children) < min(state.order.size, cfg.pw_k * state.visits ** cfg.pw_alpha):
             a = int(next(x for x in state.order if x not in state.children))
-            d = self._discount[state.node, a]
-            child, r = self._transition(state, a)
+            child, r, d = self._transition(state, a)
             edge = [child, r, d, 0, 0.0]
             state.children[a] = edge
-            ret = r + d * self._rollout(child, depth + 1)
+            ret = r + d * self._rollout(child)
         else:
             log_n = math.log(state.visits)
             best, edge = -math.inf, None
-            for a, e in state.children.items():
+            for e in state.children.values():
                 score = e[4] / e[3] + cfg.exploration * math.sqrt(log_n / e[3]) if e[3] else math.inf
                 if score > best:
                     best, edge = score, e
-            ret = edge[1] + edge[2] * self._simulate(edge[0], depth + 1)
+            ret = edge[1] + edge[2] * self._simulate(edge[0])
         edge[3] += 1
         edge[4] += ret
         return ret
@@ -211,17 +207,17 @@ class MCTSPlanner(GraphPlanner):
         cfg = self.config
         node = int(obs["current_node"][0])
         self._roi = view.belief_roi()
-        root = _State(node, view.belief.cov, view.remaining_s, 0.0)
         self._unit = 1.0
+        root = _State(node, view.belief.cov, view.remaining_s, 0.0)
         self._expand_info(root)
         if root.order.size == 0:
             raise ValueError("mcts: no affordable neighbour; the episode should have ended")
-        best_gain = root.gains.max()
+        best_gain = root.gains[root.order].max()
         self._unit = best_gain if best_gain > 0 else 1.0
         root.gains = root.gains / self._unit
         deadline = None if cfg.time_limit_s is None else time.perf_counter() + cfg.time_limit_s
         for _ in range(cfg.simulations):
-            self._simulate(root, 0)
+            self._simulate(root)
             if deadline is not None and time.perf_counter() > deadline:
                 break
         visits = {a: e[3] for a, e in root.children.items()}

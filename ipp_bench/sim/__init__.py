@@ -12,7 +12,8 @@ Modules (imports flow downwards):
 - ``world``: all of the above for one grid; ``mission``: :class:`MuJoCoMission`;
   ``env``: the gymnasium task ``ipp_bench/MuJoCoWeed15-v0``; ``demo``: ``ipp-bench demo``.
 
-Needs ``pip install "ipp-bench[sim]"`` and a system EGL or OSMesa (see ``gl``).
+Needs ``pip install "ipp-bench[sim]"`` and a system EGL or OSMesa (see ``gl``). Every module
+takes mujoco from ``ipp_bench.sim.gl``, so the backend is chosen whichever module is imported
+first; this package file imports nothing, so that ``ipp_bench.sim.demo`` (the CLI's argument
+parser) loads without MuJoCo installed.
 """
-
-from ipp_bench.sim import gl as _gl  # noqa: F401  (first: MUJOCO_GL before mujoco is imported)

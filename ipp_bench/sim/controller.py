@@ -82,11 +82,13 @@ class Leg:
             return 0.0, 0.0, 0.0
         w = math.pi / ta
         if t < ta:  # accelerate
-            return 0.5 * vc * (t - math.sin(w * t) / w), 0.5 * vc * (1 - math.cos(w * t)), 0.5 * vc * w * math.sin(w * t)
+            s, c = math.sin(w * t), math.cos(w * t)
+            return 0.5 * vc * (t - s / w), 0.5 * vc * (1 - c), 0.5 * vc * w * s
         if t <= T - ta:  # cruise
             return 0.5 * vc * ta + vc * (t - ta), vc, 0.0
         u = T - t  # decelerate: mirror image of the ramp
-        return self.length - 0.5 * vc * (u - math.sin(w * u) / w), 0.5 * vc * (1 - math.cos(w * u)), -0.5 * vc * w * math.sin(w * u)
+        s, c = math.sin(w * u), math.cos(w * u)
+        return self.length - 0.5 * vc * (u - s / w), 0.5 * vc * (1 - c), -0.5 * vc * w * s
 
     def sample(self, t: float, lead_s: float = 0.0) -> tuple[tuple, tuple, tuple]:
         """Reference position [m], velocity [m/s] at leg time t [s], and acceleration [m/s^2] at t + lead_s.
@@ -113,7 +115,8 @@ class CascadedController:
         self.yaw = float(yaw)
         g = gains
         self.kp = (g.pos_omega_xy ** 2, g.pos_omega_xy ** 2, g.pos_omega_z ** 2)
-        self.kd = (2.0 * g.pos_zeta * g.pos_omega_xy, 2.0 * g.pos_zeta * g.pos_omega_xy, 2.0 * g.pos_zeta * g.pos_omega_z)
+        kd_xy, kd_z = 2.0 * g.pos_zeta * g.pos_omega_xy, 2.0 * g.pos_zeta * g.pos_omega_z
+        self.kd = (kd_xy, kd_xy, kd_z)
         self.inertia = tuple(float(i) for i in params.inertia)
         omegas = (g.att_omega, g.att_omega, g.yaw_omega)
         self.kR = tuple(i * w * w for i, w in zip(self.inertia, omegas))

@@ -50,7 +50,7 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     parser.add_argument("--speedup", type=float, default=4.0,
                         help="mission seconds per video second (default 4)")
     parser.add_argument("--size", default="1280x720", help="video WIDTHxHEIGHT, multiples of 16 (default 1280x720)")
-    parser.add_argument("--crf", type=int, default=30, help="x264 quality, lower is better/larger (default 30)")
+    parser.add_argument("--crf", type=int, default=32, help="x264 quality, lower is better/larger (default 32)")
     parser.add_argument("--hold", type=float, default=1.0, help="seconds of video holding the final frame")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
@@ -86,6 +86,8 @@ def make_sim_env(task: str, budget: float | None = None):
 
     import ipp_bench.envs as envs
 
+    if "/" not in task:
+        task = f"{envs.registry.NAMESPACE}/{task}"
     spec = envs.task_spec(task)
     if not spec.entry_point.startswith("ipp_bench.sim"):
         deploy = envs.tagged("deployment")
@@ -153,7 +155,7 @@ class DemoVideo:
     FIG_WIDTH = 12.8  # [in]; dpi = width / 12.8, so fonts and layout scale with the video size
 
     def __init__(self, env, path: str, title: str, size=(1280, 720), fps: int = 10, speedup: float = 4.0,
-                 crf: int = 30, hold_s: float = 1.0, progress=None):
+                 crf: int = 32, hold_s: float = 1.0, progress=None):
         import imageio_ffmpeg
         from matplotlib import colormaps
         from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -162,7 +164,7 @@ class DemoVideo:
         from matplotlib.colors import Normalize
         from matplotlib.figure import Figure
 
-        from ipp_bench.sim.render import chase_camera
+        from ipp_bench.sim.render import azimuth_to_centre, chase_camera, follow_azimuth
 
         self.env, self.mission = env, env.mission
         self.world = env.world
@@ -172,6 +174,7 @@ class DemoVideo:
         self.frames = 0
         self.progress = progress
         self._chase = chase_camera(self.world.scene)
+        self._aim, self._follow = azimuth_to_centre, follow_azimuth
         cfg = env.config
         width_m, height_m = cfg.grid.size_m
         extent = (0.0, width_m, 0.0, height_m)
@@ -294,6 +297,9 @@ class DemoVideo:
         self.canvas.restore_region(self._background)
         buf = np.asarray(self.canvas.buffer_rgba())
         r0, r1, c0, c1 = self._box_chase
+        # the chase view turns smoothly (about 2 s time constant) to keep the map centre ahead
+        rate = min(1.0, self.interval / 2.0) if self.frames else 1.0
+        self._chase.azimuth = self._follow(self._chase.azimuth, self._aim(world.scene), rate)
         buf[r0:r1, c0:c1, :3] = renderer.render(self._chase, c1 - c0, r1 - r0)
         r0, r1, c0, c1 = self._box_cam
         cam = renderer.render(None, c1 - c0, r1 - r0)
@@ -351,7 +357,7 @@ def expected_frames(t_end: float, fps: int, speedup: float, hold_s: float) -> in
 
 
 def record(task: str, planner: str, seed: int, out: str, budget: float | None = None, size=(1280, 720),
-           fps: int = 10, speedup: float = 4.0, crf: int = 30, hold_s: float = 1.0,
+           fps: int = 10, speedup: float = 4.0, crf: int = 32, hold_s: float = 1.0,
            progress: bool = True) -> tuple[EpisodeLog, int]:
     """Flies ``planner`` on ``task`` and writes the video; returns the episode log and frame count."""
     env = make_sim_env(task, budget)

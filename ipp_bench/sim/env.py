@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from typing import Any
 
@@ -11,7 +12,7 @@ from ipp_bench.config import IPPConfig
 from ipp_bench.envs.graph import GraphIPPEnv
 from ipp_bench.envs.render import render_mission
 from ipp_bench.sim.mission import MuJoCoMission
-from ipp_bench.sim.render import chase_camera
+from ipp_bench.sim.render import azimuth_to_centre, chase_camera
 from ipp_bench.sim.world import SimConfig, WeedWorld
 
 _TOL = 1e-9
@@ -67,8 +68,8 @@ class MuJoCoIPPEnv(GraphIPPEnv):
         self._chase = chase_camera(self.world.scene)
 
     def _make_mission(self, truth: np.ndarray, rng: np.random.Generator, start_xyz: np.ndarray) -> MuJoCoMission:
-        # a child stream: the sensor-noise stream itself is not advanced
-        texture_seed = int(rng.spawn(1)[0].integers(2**63 - 1))
+        # drawn from a copy: the sensor-noise stream itself is not advanced
+        texture_seed = int(copy.deepcopy(rng).integers(2**63 - 1))
         return MuJoCoMission(self.config, truth, rng, start_xyz, self.world, texture_seed)
 
     def action_masks(self) -> np.ndarray:
@@ -88,6 +89,7 @@ class MuJoCoIPPEnv(GraphIPPEnv):
         renderer = self.world.renderer
         down = renderer.render(None, h, h)
         chase_w = panels.shape[1] - h - 4
+        self._chase.azimuth = azimuth_to_centre(self.world.scene)
         chase = renderer.render(self._chase, chase_w, h)
         top = np.concatenate([chase, np.full((h, 4, 3), 255, np.uint8), down], axis=1)
         return np.ascontiguousarray(np.concatenate([top, np.full((4, top.shape[1], 3), 255, np.uint8), panels]))

@@ -40,7 +40,8 @@ class Flight:
             raise ValueError("Flight: speed, ramp_s, arrive_tol and settle_speed must be > 0, max_extra_s >= 0")
         self.scene = scene
         self.speed, self.ramp_s = float(speed), float(ramp_s)
-        self.arrive_tol, self.settle_speed, self.max_extra_s = float(arrive_tol), float(settle_speed), float(max_extra_s)
+        self.arrive_tol, self.settle_speed = float(arrive_tol), float(settle_speed)
+        self.max_extra_s = float(max_extra_s)
         self.controller = CascadedController(scene.quad, gains)
         self._m, self._d = scene.model, scene.data
         self._qp, self._qv = scene.qpos_adr, scene.qvel_adr
@@ -68,7 +69,8 @@ class Flight:
 
     def leg_duration(self, target) -> float:
         """Reference duration of the leg from the current position to ``target`` [s]."""
-        return Leg.duration_for(float(np.linalg.norm(np.asarray(target, float) - self.position)), self.speed, self.ramp_s)
+        length = float(np.linalg.norm(np.asarray(target, dtype=np.float64) - self.position))
+        return Leg.duration_for(length, self.speed, self.ramp_s)
 
     def step(self, ref_pos, ref_vel, ref_acc) -> None:
         """One physics step towards the reference."""

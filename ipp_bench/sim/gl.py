@@ -1,18 +1,20 @@
 """Choice of MuJoCo's headless OpenGL backend, then the one ``import mujoco`` of the package.
 
 MuJoCo reads ``MUJOCO_GL`` once, when it is first imported, so every module of
-``ipp_bench.sim`` takes mujoco from here (``from ipp_bench.sim.gl import mujoco``)
-and ``ipp_bench/sim/__init__.py`` imports this module first. A value the user set is respected. Otherwise the first backend whose
+``ipp_bench.sim`` takes mujoco from here (``from ipp_bench.sim.gl import mujoco``).
+A value the user set is respected. Otherwise the first backend whose
 system library loads is chosen: EGL (headless, GPU or Mesa's llvmpipe), then
-OSMesa (pure software). Nothing is raised at import time: physics works without
-any OpenGL; :func:`require_gl` raises, naming the apt package, when a renderer
-is created and no backend can work.
+OSMesa (pure software); if neither is found, rendering is disabled and physics
+still works. :func:`require_gl` gives the error, naming the apt package, raised
+when a renderer cannot get a context, or at import when the backend the user
+chose cannot even be loaded.
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import importlib.util
 import os
 import sys
 
@@ -47,8 +49,9 @@ def select_backend() -> str | None:
     """Sets ``MUJOCO_GL`` (and ``PYOPENGL_PLATFORM``) if unset and returns the backend.
 
     Returns:
-        The backend name ("egl", "osmesa", or the user's own choice), or None when
-        no backend library was found (rendering will then fail with :data:`INSTALL_HINT`).
+        The backend name ("egl", "osmesa", or the user's own choice), or None when no backend
+        library was found: MuJoCo is then imported with rendering disabled (physics still works,
+        renderers raise :func:`require_gl`'s error).
     """
     requested = os.environ.get("MUJOCO_GL", "").strip().lower()
     if requested:
@@ -61,6 +64,7 @@ def select_backend() -> str | None:
             os.environ["MUJOCO_GL"] = backend
             os.environ.setdefault("PYOPENGL_PLATFORM", backend)
             return backend
+    os.environ["MUJOCO_GL"] = "disable"
     return None
 
 
@@ -71,13 +75,15 @@ def require_gl(error: BaseException | None = None) -> RuntimeError:
         error: the underlying failure, if any, whose text is appended.
     """
     backend = os.environ.get("MUJOCO_GL", "") or "<unset>"
-    library, apt = _BACKENDS.get(backend, ("EGL or OSMesa", "libegl1 libgl1-mesa-dri or libosmesa6"))
+    if backend in _BACKENDS:
+        library, apt = _BACKENDS[backend]
+        what = f"lib{library} is missing or unusable; `apt-get install {apt}` provides it."
+    else:
+        what = ("no EGL or OSMesa library was found (`apt-get install libegl1 libgl1-mesa-dri` or "
+                "`apt-get install libosmesa6`).")
     detail = f" ({type(error).__name__}: {error})" if error is not None else ""
-    return RuntimeError(
-        f"Cannot create an off-screen OpenGL context with MUJOCO_GL={backend}: "
-        f"lib{library} is missing or unusable; `apt-get install {apt}` provides it.{detail} "
-        + INSTALL_HINT
-    )
+    return RuntimeError(f"Cannot create an off-screen OpenGL context with MUJOCO_GL={backend}: {what}{detail} "
+                        + INSTALL_HINT)
 
 
 BACKEND = select_backend()
@@ -85,7 +91,10 @@ BACKEND = select_backend()
 try:
     import mujoco  # noqa: E402  (deliberately after the backend choice)
 except ImportError as _err:  # pragma: no cover - depends on the installation
-    raise ImportError(
-        f'ipp_bench.sim needs MuJoCo ({_err}): pip install "ipp-bench[sim]"') from _err
+    if importlib.util.find_spec("mujoco") is None:
+        raise ImportError(f'ipp_bench.sim needs MuJoCo ({_err}): pip install "ipp-bench[sim]"') from _err
+    raise require_gl(_err) from _err
+except Exception as _err:  # pragma: no cover - e.g. PyOpenGL failing on a missing libOSMesa
+    raise require_gl(_err) from _err
 
 __all__ = ["BACKEND", "INSTALL_HINT", "mujoco", "require_gl", "select_backend"]

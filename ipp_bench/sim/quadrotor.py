@@ -72,7 +72,8 @@ class QuadrotorParams:
         return self.mass * GRAVITY / 4.0
 
 
-def add_quadrotor(spec: mujoco.MjSpec, params: QuadrotorParams, pos=(0.0, 0.0, 1.0), name: str = "quad") -> mujoco.MjsBody:
+def add_quadrotor(spec: mujoco.MjSpec, params: QuadrotorParams, pos=(0.0, 0.0, 1.0),
+                  name: str = "quad") -> mujoco.MjsBody:
     """Adds the quadrotor (free body, rotor sites and actuators, downward camera) to ``spec``.
 
     Names: body ``quad``, camera ``quad/down``, sites and actuators ``quad/rotor{i}``.
@@ -108,3 +109,32 @@ def add_quadrotor(spec: mujoco.MjSpec, params: QuadrotorParams, pos=(0.0, 0.0, 1
         act.biastype = mujoco.mjtBias.mjBIAS_NONE
     body.add_camera(name=f"{name}/down", pos=[0.0, 0.0, params.camera_offset_z], fovy=params.camera_fovy_deg)
     return body
+
+
+def quadrotor_spec(params: QuadrotorParams = QuadrotorParams(), timestep: float = 0.005,
+                   air_density: float = 1.225) -> mujoco.MjSpec:
+    """The airframe alone, hovering 1 m above the origin (what ``assets/quadrotor.xml`` holds)."""
+    spec = mujoco.MjSpec()
+    spec.modelname = "ipp_bench_quadrotor"
+    spec.option.timestep = timestep
+    spec.option.density = air_density
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    add_quadrotor(spec, params)
+    return spec
+
+
+def export_xml(path: str, params: QuadrotorParams = QuadrotorParams()) -> None:
+    """Writes the airframe as MJCF (for MuJoCo's viewer: ``python -m mujoco.viewer --mjcf PATH``)."""
+    spec = quadrotor_spec(params)
+    spec.compile()
+    header = ("<!-- The ipp-bench quadrotor, generated from ipp_bench/sim/quadrotor.py by\n"
+              "     `python -m ipp_bench.sim.quadrotor assets/quadrotor.xml`; edit the code, not this file.\n"
+              "     The simulation composes it into the weed-field scene with MjSpec at run time. -->\n")
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(header + spec.to_xml())
+
+
+if __name__ == "__main__":
+    import sys
+
+    export_xml(sys.argv[1] if len(sys.argv) > 1 else "assets/quadrotor.xml")

@@ -11,6 +11,8 @@ again before the next frame.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ipp_bench.sim import gl as _gl
@@ -19,14 +21,29 @@ from ipp_bench.sim.gl import mujoco
 from ipp_bench.sim.scene import WeedScene
 
 
-def chase_camera(scene: WeedScene, distance: float = 6.5, azimuth: float = 45.0,
-                 elevation: float = -30.0) -> mujoco.MjvCamera:
-    """A camera that follows the drone from above and behind, looking along +x +y (angles in degrees)."""
+def chase_camera(scene: WeedScene, distance: float = 7.0, azimuth: float = 45.0,
+                 elevation: float = -38.0) -> mujoco.MjvCamera:
+    """A camera that follows the drone from above and behind (angles in degrees; azimuth 45 looks along +x +y)."""
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
     cam.trackbodyid = scene.body_id
     cam.distance, cam.azimuth, cam.elevation = distance, azimuth, elevation
     return cam
+
+
+def azimuth_to_centre(scene: WeedScene) -> float:
+    """Azimuth [deg] from the drone towards the centre of the map (the chase view keeps the field in sight)."""
+    x, y = scene.data.qpos[scene.qpos_adr: scene.qpos_adr + 2]
+    cx, cy = scene.cols * scene.resolution / 2.0, scene.rows * scene.resolution / 2.0
+    if math.hypot(cx - x, cy - y) < 1e-6:
+        return 45.0
+    return math.degrees(math.atan2(cy - y, cx - x))
+
+
+def follow_azimuth(current: float, target: float, rate: float) -> float:
+    """Turns ``current`` towards ``target`` [deg] by the fraction ``rate`` of the shortest way."""
+    delta = (target - current + 180.0) % 360.0 - 180.0
+    return current + rate * delta
 
 
 class SceneRenderer:

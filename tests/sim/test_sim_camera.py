@@ -137,3 +137,15 @@ def test_read_camera_uses_sensor_binning_and_drops_unseen_rows(world):
     seen[nominal.cells[0]] = False
     cut = restrict(nominal, seen)
     assert cut.m == nominal.m - 1 and nominal.cells[0] not in cut.cells
+
+
+def test_backend_is_chosen_before_mujoco_is_imported():
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    code = ("import sys, os, ipp_bench.sim.demo; assert 'mujoco' not in sys.modules; "
+            "import ipp_bench.sim.scene; print(os.environ['MUJOCO_GL'])")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() in ("egl", "osmesa")

@@ -121,3 +121,16 @@ def test_render_rgb_array():
     assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3 and img.shape[0] > 300
     assert e.world.cfg.image_size == 64
     e.close()
+
+
+@pytest.mark.slow
+def test_full_200s_mission():
+    e = gym.make(TASK).unwrapped
+    log = fly_episode(e, "random", seed=0)
+    m = e.mission
+    assert 195.0 <= m.time_s <= 200.0
+    for t in (50.0, 100.0, 150.0, 200.0):
+        assert np.isfinite(m.metrics_at(t)["trace_roi"])
+    assert log.metrics["uncertainty_reduction_pct"] > 0
+    assert m.n_measurements > 100
+    e.close()

@@ -111,3 +111,14 @@ def test_leg_reference_profile():
     short = Leg([0, 0, 0], [0, 0, 1.0], speed=2.0, ramp_s=1.0)  # too short to reach 2 m/s
     assert short.cruise_speed == pytest.approx(1.0) and short.duration == pytest.approx(2.0)
     assert mujoco.__version__  # the module's mujoco is the real one
+
+
+def test_exported_airframe_matches_the_code():
+    from ipp_bench.data import data_dir
+    from ipp_bench.sim.quadrotor import quadrotor_spec
+
+    shipped = mujoco.MjModel.from_xml_path(str(data_dir("assets") / "quadrotor.xml"))
+    code = quadrotor_spec().compile()
+    for name in ("body_mass", "body_inertia", "actuator_gear", "actuator_ctrlrange", "actuator_dynprm",
+                 "geom_size", "geom_pos", "site_pos", "cam_fovy", "cam_pos"):
+        np.testing.assert_allclose(getattr(shipped, name), getattr(code, name), rtol=1e-5, err_msg=name)

@@ -1,0 +1,30 @@
+"""Helpers of the eval tests: tiny leaderboards (40 s missions, cheap planners, two episodes)."""
+
+from __future__ import annotations
+
+from ipp_bench.eval.leaderboard import RESULTS_CSV, TIMING_COLUMNS, make_plan, read_results, run_leaderboard
+
+TASKS = ("ipp_bench/Grid15Eval-v0", "ipp_bench/Grid20Eval-v0")
+PLANNERS = ("random", "coverage", "greedy", "mcts:simulations=3")
+TINY_ENV = {"budget_s": 40, "report_times": [20, 40]}
+EPISODES = 2
+
+
+def tiny_plan(**kwargs):
+    args = dict(tasks=TASKS, planners=PLANNERS, episodes=EPISODES, seed=7, env_overrides=TINY_ENV, log=lambda m: None)
+    args.update(kwargs)
+    return make_plan(**args)
+
+
+def run_tiny(out, plan=None, backend="serial", workers=None, **kwargs):
+    return run_leaderboard(plan or tiny_plan(), out, backend=backend, workers=workers, progress=False,
+                           log=lambda m: None, **kwargs)
+
+
+def without_timing(rows):
+    """Rows with the wall-time columns removed (those differ from run to run)."""
+    return [{k: v for k, v in r.items() if k not in TIMING_COLUMNS} for r in rows]
+
+
+def results(out):
+    return read_results(out / RESULTS_CSV)

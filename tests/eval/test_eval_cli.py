@@ -1,0 +1,103 @@
+"""``ipp-bench`` smoke tests through ``main([...])``."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from ipp_bench.cli import main
+from ipp_bench.eval.executors import check_executor_args
+from ipp_bench.eval.leaderboard import QUICK_EPISODES
+
+TINY = ["--env", "budget_s=40", "--env", "report_times=[20,40]"]
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_tasks_lists_ids_and_tags(capsys):
+    assert main(["tasks"]) == 0
+    out = capsys.readouterr().out
+    assert "ipp_bench/Grid15Eval-v0" in out and "benchmark" in out and "train" in out
+
+
+def test_evaluate_prints_the_metrics_and_renders(capsys, tmp_path):
+    png = tmp_path / "final.png"
+    assert main(["evaluate", "--task", "Grid15Eval-v0", "--planner", "greedy", "--seed", "3",
+                 "--render", str(png), *TINY]) == 0
+    out = capsys.readouterr().out
+    assert "uncertainty red." in out and "decisions" in out
+    assert out.count("%") >= 4  # two report times, two reductions
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert main(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", "--seed", "3", "--json", *TINY]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert [r["time_s"] for r in data["report"]] == [20.0, 40.0] and data["decisions"] > 0
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["evaluate", "--task", "Grid15Eval-v0", "--planner", "nope"], "unknown planner 'nope'"),
+    (["evaluate", "--task", "Nope-v0", "--planner", "random"], "unknown task"),
+    (["evaluate", "--task", "Grid15Eval-v0", "--planner", "mcts:simulations=0"], "mcts.simulations"),
+    (["leaderboard", "--planners", "greedy:depth=2"], "has no setting"),
+    (["leaderboard", "--planners", "random", "--episodes", "0"], "episodes"),
+    (["leaderboard", "--planners", "random", "--workers", "0"], "workers"),
+    (["leaderboard", "--planners", "random", "--backend", "serial", "--address", "ray://x:1"], "--address"),
+], ids=["planner", "task", "setting", "lb-setting", "episodes", "workers", "address"])
+def test_bad_arguments_exit_2_with_the_message_and_no_traceback(argv, message, capsys, tmp_path):
+    assert main([*argv, *(["--out", str(tmp_path / "o")] if argv[0] == "leaderboard" else [])]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "o" / "results.csv").exists()
+
+
+def test_leaderboard_runs_resumes_and_refuses_other_arguments(capsys, tmp_path):
+    out = tmp_path / "lb"
+    argv = ["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random", "coverage", "--episodes", "2",
+            "--seed", "1", "--backend", "serial", "--no-progress", "--out", str(out), *TINY]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "[4/4]" in text and "leaderboard.md" in text
+    assert {"results.csv", "run.json", "leaderboard.md", "runtime_per_decision.png"} <= {p.name for p in out.iterdir()}
+    assert main(argv) == 0
+    assert "4 already in" in capsys.readouterr().out
+    assert main([*argv, "--seed", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "seed" in err and "--out" in err
+
+
+def test_quick_help_matches_the_constant(capsys):
+    with pytest.raises(SystemExit):
+        main(["leaderboard", "--help"])
+    assert f"--quick: {QUICK_EPISODES}" in capsys.readouterr().out
+
+
+def test_leaderboard_imports_neither_torch_nor_mujoco(tmp_path):
+    code = (
+        "import sys; from ipp_bench.cli import main; "
+        f"rc = main(['leaderboard', '--tasks', 'Grid15Eval-v0', '--planners', 'random', '--episodes', '1', "
+        f"'--backend', 'serial', '--progress', '--out', {str(tmp_path / 'lb')!r}, '--env', 'budget_s=20', '--env', 'report_times=[20]']); "
+        "heavy = [m for m in ('torch', 'mujoco', 'stable_baselines3') if m in sys.modules]; "
+        "assert rc == 0 and not heavy, (rc, heavy)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "1/1" in proc.stderr  # the tqdm bar (forced on with --progress)
+
+
+@pytest.mark.parametrize("command, module, extra", [
+    ("train", "ipp_bench.policies.train", "train"), ("demo", "ipp_bench.sim.demo", "sim")])
+def test_missing_subcommand_module_names_the_extra(command, module, extra, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, module, None)  # import now raises ImportError, as without the extra
+    assert main([command, "--help"]) == 2
+    err = capsys.readouterr().err
+    assert f'pip install "ipp-bench[{extra}]"' in err and "Traceback" not in err
+
+
+def test_ray_backend_without_ray_names_the_extra(monkeypatch, capsys, tmp_path):
+    monkeypatch.setitem(sys.modules, "ray", None)
+    with pytest.raises(ImportError, match=r'ipp-bench\[ray\]'):
+        check_executor_args("ray")
+    assert main(["leaderboard", "--planners", "random", "--backend", "ray", "--out", str(tmp_path / "o")]) == 2
+    assert 'pip install "ipp-bench[ray]"' in capsys.readouterr().err

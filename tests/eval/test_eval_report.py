@@ -1,0 +1,84 @@
+"""The report: Table I layout, bootstrap intervals, bold best, plots."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from lb_helpers import PLANNERS
+
+from ipp_bench.eval.leaderboard import COLUMNS, RESULTS_CSV, format_header, format_rows
+from ipp_bench.eval.report import Aggregate, bootstrap_ci, markdown_table, write_report
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def test_bootstrap_ci_brackets_the_mean_and_is_reproducible():
+    x = np.random.default_rng(0).normal(10.0, 2.0, size=40)
+    mean, low, high = bootstrap_ci(x)
+    assert mean == pytest.approx(x.mean())
+    assert low < mean < high
+    se = x.std(ddof=1) / np.sqrt(x.size)  # the percentile interval is close to mean +- 1.96 se
+    assert high - low == pytest.approx(2 * 1.96 * se, rel=0.15)
+    assert bootstrap_ci(x) == (mean, low, high)
+    assert bootstrap_ci([3.0]) == (3.0, 3.0, 3.0)
+    assert bootstrap_ci([2.0, 2.0, 2.0]) == (2.0, 2.0, 2.0)
+    with pytest.raises(ValueError):
+        bootstrap_ci([])
+
+
+def synthetic_rows():
+    """Two planners on one task: 'good' reduces more at every time and is slower per decision."""
+    rows = []
+    for planner, base, dt in (("good", 60.0, 0.5), ("bad", 30.0, 0.001)):
+        for i, seed in enumerate((1, 2, 3)):
+            for t in (50.0, 100.0):
+                rows.append(dict(task="ipp_bench/Toy-v0", planner=planner, seed=seed, time_s=t,
+                                 trace_roi=100 - base - t / 10, rmse_roi=0.2, uncertainty_reduction_pct=base + t / 10 + i,
+                                 rmse_reduction_pct=base / 2 + i, decisions=10, decision_time_mean_s=dt * (1 + i / 10),
+                                 decision_time_max_s=2 * dt, episode_wall_s=1.0))
+    return rows
+
+
+def test_markdown_has_table_one_layout_and_bolds_the_best():
+    table = markdown_table(Aggregate(synthetic_rows()))
+    lines = table.strip().splitlines()
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    assert header == ["Environment", "Method", "Uncertainty reduction 50 s", "100 s",
+                      "RMSE reduction 50 s", "100 s", "Runtime per decision [s]"]
+    good, bad = lines[2], lines[3]
+    assert good.startswith("| **Toy-v0** | `good` |") and bad.startswith("|  | `bad` |")
+    good_cells = [c.strip() for c in good.strip("|").split("|")]
+    bad_cells = [c.strip() for c in bad.strip("|").split("|")]
+    assert good_cells[2] == "**66.0%** [65.0, 67.0]"  # mean of 65, 66, 67 and its interval
+    assert all(c.startswith("**") for c in good_cells[2:6]) and not any("**" in c for c in bad_cells[2:6])
+    assert bad_cells[6].startswith("**0.00110**") and not good_cells[6].startswith("**")  # lowest runtime
+
+
+def test_equal_means_are_all_bold():
+    rows = [dict(r, planner=p) for r in synthetic_rows() if r["planner"] == "good" for p in ("a", "b")]
+    lines = markdown_table(Aggregate(rows)).strip().splitlines()[2:]
+    assert all(line.count("**") >= 2 * 5 for line in lines)
+
+
+def test_report_of_a_run_has_every_planner_and_the_plots(reference_run):
+    out, summary = reference_run
+    names = {p.name for p in summary.files}
+    assert {"leaderboard.md", "curves_Grid15Eval-v0.png", "curves_Grid20Eval-v0.png",
+            "runtime_per_decision.png"} <= names
+    for p in summary.files:
+        if p.suffix == ".png":
+            data = p.read_bytes()
+            assert data[:8] == PNG_MAGIC and len(data) > 10_000
+    md = (out / "leaderboard.md").read_text()
+    for planner in PLANNERS:
+        assert md.count(f"`{planner}`") == 4  # two tasks, two tables
+    assert md.count("**Grid15Eval-v0**") == 2 and "Uncertainty reduction 20 s" in md
+
+
+def test_write_report_from_a_csv_alone(tmp_path):
+    csv_path = tmp_path / RESULTS_CSV
+    csv_path.write_text(format_header() + format_rows(synthetic_rows()))
+    assert format_header().strip().split(",") == list(COLUMNS)
+    written = write_report(csv_path, tmp_path)
+    assert [p.name for p in written] == ["leaderboard.md", "curves_Toy-v0.png", "runtime_per_decision.png"]
+    assert "![runtime_per_decision](runtime_per_decision.png)" in written[0].read_text()

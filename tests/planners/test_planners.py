@@ -1,0 +1,157 @@
+"""Planner registry, decisions against the maths, truth blindness and determinism."""
+
+import os
+
+import numpy as np
+import pytest
+
+from ipp_bench.eval.runner import make_env, run_episode
+from ipp_bench.planners import RobotView, make_config, make_planner, parse_spec, planner_names
+
+TASK = "ipp_bench/Grid15Eval-v0"
+CHEAP = {"random": "random", "coverage": "coverage", "greedy": "greedy",
+         "mcts": "mcts:simulations=8,rollout_depth=2", "cmaes": "cmaes:max_evals=24"}
+
+
+def test_registry_and_specs():
+    assert {"random", "coverage", "greedy", "mcts", "cmaes"} <= set(planner_names())
+    assert parse_spec("mcts:simulations=200, gamma=0.9") == ("mcts", {"simulations": "200", "gamma": "0.9"})
+    cfg = make_config("mcts", {"simulations": "200", "time_limit_s": "none"})
+    assert cfg.simulations == 200 and cfg.time_limit_s is None
+    assert make_planner("coverage:altitude=10").config.altitude == 10.0
+
+
+@pytest.mark.parametrize("spec, match", [
+    ("nope", "unknown planner 'nope'.*valid are"),
+    ("mcts:sims=3", r"no setting \['sims'\].*simulations"),
+    ("mcts:simulations=0", "mcts.simulations = 0 is invalid: expected an integer >= 1"),
+    ("mcts:simulations=many", "mcts.simulations = 'many' is invalid: expected a int"),
+    ("mcts:gamma=1.5", r"mcts.gamma = 1.5 is invalid: expected a number in \(0, 1\]"),
+    ("cmaes:max_evals=3", "cmaes.max_evals"),
+    ("coverage:overlap=1", "coverage.overlap"),
+    ("mcts:simulations", "is not key=value"),
+])
+def test_bad_specs_name_the_setting(spec, match):
+    with pytest.raises(ValueError, match=match):
+        make_planner(spec)
+
+
+@pytest.mark.parametrize("name", sorted(CHEAP))
+def test_short_episode_respects_budget_and_is_deterministic(name):
+    a = run_episode(TASK, CHEAP[name], seed=5, budget_s=25.0)
+    b = run_episode(TASK, CHEAP[name], seed=5, budget_s=25.0)
+    assert a.final["time_s"] <= 25.0 + 1e-9 and a.decisions > 0
+    assert a.report == b.report and a.final == b.final
+    assert a.report == [] or all(r["time_s"] <= 25.0 for r in a.report)
+    assert a.final["uncertainty_reduction_pct"] > 0
+
+
+def test_greedy_picks_best_gain_per_second_by_brute_force():
+    env = make_env(TASK)
+    obs, _ = env.reset(seed=1)
+    planner = make_planner("greedy")
+    view = RobotView(env)
+    planner.reset(view, 1)
+    for _ in range(3):  # a few steps in, so the belief is not the prior
+        obs, *_ = env.step(planner.act(obs))
+    roi = env.mission.belief_roi()
+    P = env.mission.belief.cov
+    node = env.current_node
+    brute = []
+    for a in range(20):
+        target = env.roadmap.positions[env.roadmap.neighbours[node, a]]
+        H = np.vstack([o.dense(225) for o in view.leg_observations(env.roadmap.positions[node], target)])
+        R = np.concatenate([o.var for o in view.leg_observations(env.roadmap.positions[node], target)])
+        post = P - P @ H.T @ np.linalg.solve(H @ P @ H.T + np.diag(R), H @ P)
+        brute.append((np.trace(P[np.ix_(roi, roi)]) - np.trace(post[np.ix_(roi, roi)])) / env.roadmap.costs[node, a])
+    np.testing.assert_allclose(planner.scores(obs), brute, rtol=1e-8)
+    assert planner.act(obs) == int(np.argmax(brute))
+
+
+def test_coverage_is_a_lawnmower_at_the_lowest_altitude():
+    env = make_env(TASK)
+    env.reset(seed=0)
+    planner = make_planner("coverage")
+    planner.reset(RobotView(env), 0)
+    waypoints = []
+    for _ in range(9):
+        wp = planner.next_waypoint()
+        waypoints.append(wp)
+        env.mission.fly_to(wp)
+    wp = np.array(waypoints)
+    assert np.all(wp[:, 2] == 8.0)
+    half = env.sensor.footprint_side(8.0) / 2
+    lanes = sorted(set(np.round(wp[:, 1], 6)))
+    assert lanes[0] == pytest.approx(half) and lanes[-1] == pytest.approx(37.5 - half)
+    assert np.all(np.diff(lanes) <= 2 * half + 1e-9)  # neighbouring footprints touch: full coverage
+    # measurements equally spaced along each lane: 7.5 m apart (the arrival one closes the lane)
+    log = np.array(env.mission.measurement_log)[:, 1:]
+    gaps = np.linalg.norm(np.diff(log, axis=0), axis=1)
+    assert np.median(gaps) == pytest.approx(7.5)
+
+
+def test_cmaes_stays_in_bounds_and_writes_no_files(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    result = run_episode(TASK, "cmaes:max_evals=24", seed=2, budget_s=40.0)
+    assert os.listdir(tmp_path) == []
+    env = make_env(TASK, budget_s=40.0)
+    env.reset(seed=2)
+    planner = make_planner("cmaes:max_evals=24")
+    planner.reset(RobotView(env), 2)
+    while (wp := planner.next_waypoint()) is not None:
+        assert 8.0 - 1e-9 <= wp[2] <= 14.0 + 1e-9
+        assert 0 <= wp[0] <= 37.5 and 0 <= wp[1] <= 37.5
+        env.mission.fly_to(wp)
+    assert env.mission.metrics() == result.final
+
+
+def test_view_has_no_truth():
+    env = make_env(TASK)
+    env.reset(seed=0)
+    view = RobotView(env)
+    public = [n for n in dir(view) if not n.startswith("_")]
+    assert not any("truth" in n for n in public)
+
+
+@pytest.mark.parametrize("name", ["greedy", "mcts", "cmaes", "coverage", "random"])
+def test_planners_never_read_the_ground_truth(name):
+    """Change the truth where the planner never looked: every decision must stay the same."""
+    spec = CHEAP[name]
+
+    def decisions(truth_patch=None):
+        env = make_env(TASK, budget_s=30.0)
+        env.reset(seed=4)
+        if truth_patch is not None:
+            m = env.mission
+            truth = m.truth.copy()
+            truth[truth_patch] = 1.0 - truth[truth_patch]
+            truth.flags.writeable = False
+            m.truth, m._truth_flat = truth, truth.reshape(-1)
+        planner = make_planner(spec)
+        planner.reset(RobotView(env), 4)
+        out, obs = [], env._observation()
+        while env.mission.remaining_s > 0.5:
+            if planner.kind == "graph":
+                if not obs["action_mask"].any():
+                    break
+                a = planner.act(obs)
+                out.append(a)
+                obs, *_ = env.step(a)
+            else:
+                wp = planner.next_waypoint()
+                if wp is None:
+                    break
+                out.append(tuple(np.round(wp, 9)))
+                env.mission.fly_to(wp)
+        seen = np.zeros(225, bool)
+        for _, *p in env.mission.measurement_log:
+            o = env.sensor.observe(p)
+            if o is not None:
+                seen[o.cells] = True
+        return out, seen
+
+    base, seen = decisions()
+    unseen = ~seen.reshape(15, 15)
+    assert unseen.any()
+    patched, _ = decisions(unseen)
+    assert patched == base

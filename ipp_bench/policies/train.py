@@ -722,8 +722,11 @@ def run_train(args: argparse.Namespace) -> int:
     log_file = (run / "train.log").open("a")
 
     def say(msg: str) -> None:
+        from tqdm.auto import tqdm
+
         line = f"[{time.strftime('%H:%M:%S')}] {msg}"
-        print(line, flush=True)
+        tqdm.write(line)  # keeps progress bars intact
+        sys.stdout.flush()
         log_file.write(line + "\n")
         log_file.flush()
 

@@ -10,7 +10,7 @@ from ipp_bench.planners import RobotView, make_config, make_planner, parse_spec,
 
 TASK = "ipp_bench/Grid15Eval-v0"
 CHEAP = {"random": "random", "coverage": "coverage", "greedy": "greedy",
-         "mcts": "mcts:simulations=8,rollout_depth=2", "cmaes": "cmaes:max_evals=24"}
+         "mcts": "mcts:simulations=8,horizon_s=4", "cmaes": "cmaes:max_evals=24"}
 
 
 def test_registry_and_specs():

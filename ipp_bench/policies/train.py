@@ -85,6 +85,7 @@ class TrainArgs:
     bc_epochs: int = 8  # passes over the data after each round
     bc_lr: float = 3e-4
     bc_temperature: float = 0.1  # soft targets from the expert's scores; 0 = one-hot on its action
+    val_task: str = ""  # task of the validation episodes; "" = the training task
     eval_every: int = 20_000  # [steps] validation period (also after the warm start)
     eval_episodes: int = 16
     checkpoint_every: int = 20_000  # [steps] keep checkpoints/step_<n>.zip
@@ -144,6 +145,9 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
                    help="soft imitation targets p ~ exp((score/best - 1)/T) from the expert's scores; 0 = one-hot "
                         f"(default {d.bc_temperature})")
     v = parser.add_argument_group("validation and checkpoints")
+    v.add_argument("--val-task", default=None,
+                   help="task of the validation episodes (seeds 10,000,000 onwards, disjoint from the "
+                        "leaderboard's); default: the training task")
     v.add_argument("--eval-every", type=int, default=None, help=f"validation period in steps (default {d.eval_every})")
     v.add_argument("--eval-episodes", type=int, default=None, help=f"validation episodes (default {d.eval_episodes})")
     v.add_argument("--checkpoint-every", type=int, default=None,
@@ -298,16 +302,33 @@ def net_action(net: AttentionNet, obs: dict, device: torch.device, deterministic
 
 def evaluate_net(net: AttentionNet, task: str, episodes: int, device: torch.device,
                  seed0: int = VAL_SEED0) -> dict[str, float]:
-    """Deterministic episodes on fixed seeds: mean uncertainty reduction at the task's report times."""
+    """Deterministic (argmax) episodes of ``task`` on fixed seeds.
+
+    Every second episode starts at the node nearest the default start of
+    :class:`~ipp_bench.config.MissionConfig` (above cell (2, 2) at 14 m) instead of the task's own
+    start rule, so that a policy which is good from random starts but, say, oscillates between
+    two nodes from the standard start does not pass validation.
+
+    Returns:
+        ``val/score`` (mean ROI uncertainty reduction over the report times within the budget),
+        ``val/unc_red_<t>s`` per report time, ``val/return``.
+    """
+    from ipp_bench.config import MissionConfig
+    from ipp_bench.mission import cell_to_xyz
+
     env = make_env(task)
-    times = env.unwrapped.config.mission.report_times
-    budget = env.unwrapped.config.mission.budget_s
+    base = env.unwrapped
+    times = base.config.mission.report_times
+    budget = base.config.mission.budget_s
     times = [t for t in times if t <= budget + 1e-9] or [budget]
+    start = MissionConfig().start
+    std_node = base.roadmap.nearest_node(cell_to_xyz(base.config, *start)) if start is not None else None
     red, ret = [], []
     was_training = net.training
     net.eval()
     for i in range(episodes):
-        obs, _ = env.reset(seed=seed0 + i)
+        options = {"start_node": std_node} if (i % 2 and std_node is not None) else None
+        obs, _ = env.reset(seed=seed0 + i, options=options)
         total, done = 0.0, False
         while not done:
             obs, r, term, trunc, _ = env.step(net_action(net, obs, device))
@@ -446,7 +467,8 @@ def fit_bc(net: AttentionNet, data: BCDataset, epochs: int, lr: float, batch_siz
     net.eval()
 
 
-def warm_start(cfg: TrainArgs, run: Path, device: torch.device, say: Callable[[str], None]) -> Path:
+def warm_start(cfg: TrainArgs, run: Path, device: torch.device, say: Callable[[str], None]
+               ) -> tuple[AttentionNet, dict[str, float]]:
     """Behaviour cloning (DAgger) from ``cfg.warm_start``; writes ``warmstart/bc.pt``."""
     out = run / "warmstart"
     out.mkdir(exist_ok=True)
@@ -481,13 +503,13 @@ def warm_start(cfg: TrainArgs, run: Path, device: torch.device, say: Callable[[s
                log=lambda r: (log({"phase": "fit", **r}),
                               say(f"  epoch {r['epoch']}: loss_pi {r['loss_pi']:.3f} loss_v {r['loss_v']:.3f} "
                                   f"acc {r['acc']:.3f} target_p {r['target_p']:.3f}")))
-    val = evaluate_net(net, cfg.task, cfg.eval_episodes, device)
+    val = evaluate_net(net, cfg.val_task or cfg.task, cfg.eval_episodes, device)
     log({"phase": "validate", **val})
     say("warm start done in %.0f s; validation: %s" % (time.time() - t0, _fmt(val)))
-    path = save_checkpoint(net, out / "bc.pt", meta={"task": cfg.task, "phase": "warm start",
-                                                      "expert": cfg.warm_start, "samples": len(data),
-                                                      "wall_s": time.time() - t0, **val})
-    return path
+    save_checkpoint(net, out / "bc.pt", meta={"task": cfg.task, "phase": "warm start",
+                                               "expert": cfg.warm_start, "samples": len(data),
+                                               "wall_s": time.time() - t0, **val})
+    return net, val
 
 
 # ------------------------------------------------------------------------------------------------
@@ -571,7 +593,7 @@ def _make_callback(cfg: TrainArgs, run: Path, device: torch.device, state: dict,
 
         def validate(self, n: int) -> None:
             net = self.model.policy.attention_net()
-            val = evaluate_net(net, cfg.task, cfg.eval_episodes, device)
+            val = evaluate_net(net, cfg.val_task or cfg.task, cfg.eval_episodes, device)
             self.model.policy.set_training_mode(False)
             for key, v in val.items():
                 self.logger.record(key, v)
@@ -743,8 +765,11 @@ def run_train(args: argparse.Namespace) -> int:
             bc_path = run / "warmstart" / "bc.pt"
             if not state.get("bc_done"):
                 t0 = time.time()
-                bc_path = warm_start(cfg, run, device, say)
+                net, val = warm_start(cfg, run, device, say)
                 state.update(bc_done=True, bc_wall_s=time.time() - t0)
+                # The warm-start policy is the first candidate for export.pt; PPO must beat it.
+                state.update(best_score=val["val/score"], best_step=0)
+                save_checkpoint(net, run / "export.pt", meta=_meta(cfg, state, 0, val))
                 _write_state(run, state)
         ppo(cfg, run, device, state, bc_path, say)
     except KeyboardInterrupt:

@@ -28,3 +28,11 @@ def without_timing(rows):
 
 def results(out):
     return read_results(out / RESULTS_CSV)
+
+
+def assert_same_results(got, want):
+    """Equal rows (timing columns aside); on failure, name the first differing episodes."""
+    got, want = without_timing(got), without_timing(want)
+    if got != want:
+        diff = [(a, b) for a, b in zip(got, want) if a != b][:3]
+        raise AssertionError(f"{len(got)} vs {len(want)} rows; first differences (got, want): {diff}")

@@ -5,7 +5,8 @@ from __future__ import annotations
 import json
 
 import pytest
-from lb_helpers import EPISODES, PLANNERS, TASKS, TINY_ENV, results, run_tiny, tiny_plan, without_timing
+from lb_helpers import (EPISODES, PLANNERS, TASKS, TINY_ENV, assert_same_results, results, run_tiny, tiny_plan,
+                        without_timing)
 
 import ipp_bench.eval.leaderboard as lb
 from ipp_bench.eval.leaderboard import (
@@ -202,7 +203,7 @@ def test_process_pool_gives_the_same_results(reference_run, tmp_path):
     out = tmp_path / "process"
     summary = run_tiny(out, backend="process", workers=2)
     assert summary.ran == summary.total
-    assert without_timing(results(out)) == without_timing(results(reference_run[0]))
+    assert_same_results(results(out), results(reference_run[0]))
 
 
 @pytest.mark.ray
@@ -213,6 +214,6 @@ def test_ray_gives_the_same_results(reference_run, tmp_path):
         out = tmp_path / "ray"
         summary = run_tiny(out, backend="ray", workers=2)
         assert summary.ran == summary.total
-        assert without_timing(results(out)) == without_timing(results(reference_run[0]))
+        assert_same_results(results(out), results(reference_run[0]))
     finally:
         ray.shutdown()

@@ -117,11 +117,11 @@ class Planner(Protocol):
     def reset(self, view: RobotView, seed: int) -> None: ...
 
 
-class GraphPlanner:
-    """Base of roadmap planners: ``act(obs) -> neighbour index``."""
+class _PlannerBase:
+    """Config, view and a per-episode random generator (seeded by ``reset``)."""
 
-    name: ClassVar[str] = "graph"
-    kind: ClassVar[str] = "graph"
+    name: ClassVar[str] = "base"
+    kind: ClassVar[str] = "base"
 
     def __init__(self, config: Any = None):
         self.config = config
@@ -131,25 +131,21 @@ class GraphPlanner:
     def reset(self, view: RobotView, seed: int) -> None:
         self.view = view
         self.rng = np.random.default_rng(seed)
+
+
+class GraphPlanner(_PlannerBase):
+    """Base of roadmap planners: ``act(obs) -> neighbour index``."""
+
+    kind: ClassVar[str] = "graph"
 
     def act(self, obs: dict[str, np.ndarray]) -> int:
         raise NotImplementedError
 
 
-class ContinuousPlanner:
+class ContinuousPlanner(_PlannerBase):
     """Base of continuous planners: ``next_waypoint() -> xyz`` (None: nothing affordable)."""
 
-    name: ClassVar[str] = "continuous"
     kind: ClassVar[str] = "continuous"
-
-    def __init__(self, config: Any = None):
-        self.config = config
-        self.view: RobotView | None = None
-        self.rng = np.random.default_rng(0)
-
-    def reset(self, view: RobotView, seed: int) -> None:
-        self.view = view
-        self.rng = np.random.default_rng(seed)
 
     def next_waypoint(self) -> np.ndarray | None:
         raise NotImplementedError

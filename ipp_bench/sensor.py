@@ -100,20 +100,25 @@ class Sensor:
         r0, r1, c0, c1 = self.footprint_ranges(xyz)
         if r1 < r0 or c1 < c0:
             return None
-        key = (r0, r1, c0, c1, h)
-        obs = self._cache.get(key)
-        if obs is None:
-            obs = self._build(r0, r1, c0, c1, h)
+        binned = self.binned(h)
+        key = (r0, r1, c0, c1, binned)
+        layout = self._cache.get(key)
+        if layout is None:
+            layout = self._layout(r0, r1, c0, c1, binned)
             if len(self._cache) > 65536:
                 self._cache.clear()
-            self._cache[key] = obs
-        return obs
+            self._cache[key] = layout
+        cells, W = layout
+        var = np.full(W.shape[0], self.noise_variance(h))
+        var.flags.writeable = False
+        return Observation(cells=cells, weights=W, var=var, altitude=h)
 
-    def _build(self, r0: int, r1: int, c0: int, c1: int, h: float) -> Observation:
+    def _layout(self, r0: int, r1: int, c0: int, c1: int, binned: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Observed cells and the rows of H over them (cached: they depend on the ranges only)."""
         rr, cc = np.meshgrid(np.arange(r0, r1 + 1), np.arange(c0, c1 + 1), indexing="ij")
         cells = (rr * self.grid.cols + cc).ravel()
         q = cells.size
-        if self.binned(h):
+        if binned:
             b = self.cfg.binning
             nbc = (c1 - c0) // b + 1
             block = (((rr - r0) // b) * nbc + (cc - c0) // b).ravel()
@@ -123,12 +128,10 @@ class Sensor:
             W[block, np.arange(q)] = 1.0
             W /= W.sum(axis=1, keepdims=True)
         else:
-            m = q
             W = np.eye(q)
-        var = np.full(m, self.noise_variance(h))
-        for a in (cells, W, var):
+        for a in (cells, W):
             a.flags.writeable = False
-        return Observation(cells=cells, weights=W, var=var, altitude=h)
+        return cells, W
 
     def matrix(self, xyz) -> np.ndarray:
         """Dense H (m, n) for a read-out at ``xyz``; (0, n) when the footprint misses the map."""

@@ -91,7 +91,7 @@ class Mission:
         self.belief = belief if belief is not None else GPBelief.from_grid(
             (g.rows, g.cols), g.resolution, config.gp.length_scale, config.gp.signal_variance,
             config.gp.prior_mean)
-        self.position = self._check_xyz(start_xyz)
+        self.position = self.check_position(start_xyz)
         self.time_s = 0.0
         self.distance_m = 0.0
         self.n_measurements = 0
@@ -122,7 +122,8 @@ class Mission:
         return self.leg_time(xyz) <= self.remaining_s + _TOL
 
     # -- flight -------------------------------------------------------------------------------
-    def _check_xyz(self, xyz) -> np.ndarray:
+    def check_position(self, xyz) -> np.ndarray:
+        """``xyz`` as a float array, or a ValueError naming the valid region."""
         p = np.asarray(xyz, dtype=np.float64).reshape(-1)
         width, height = self.config.grid.size_m
         if p.shape != (3,) or not np.all(np.isfinite(p)):
@@ -133,6 +134,19 @@ class Mission:
                 f"y in [0, {height}], z > 0 [m]")
         return p
 
+    def check_leg(self, xyz) -> tuple[np.ndarray, float]:
+        """Validate a leg to ``xyz``: returns (target, length [m]) or raises as ``fly_to`` does."""
+        target = self.check_position(xyz)
+        dist = float(np.linalg.norm(target - self.position))
+        if dist <= 1e-6:
+            raise ValueError(f"fly_to({tuple(target)}): already there; a leg must move")
+        duration = dist / self.config.mission.speed
+        if duration > self.remaining_s + _TOL:
+            raise BudgetExceededError(
+                f"leg of {dist:.2f} m takes {duration:.2f} s but only {self.remaining_s:.2f} s of the "
+                f"{self.budget_s:.0f} s budget remain")
+        return target, dist
+
     def fly_to(self, xyz) -> Leg:
         """Fly straight to ``xyz`` [m], measuring along the way and on arrival.
 
@@ -140,17 +154,10 @@ class Mission:
             BudgetExceededError: the leg takes longer than the remaining budget.
             ValueError: ``xyz`` is off the map or equals the current position.
         """
-        target = self._check_xyz(xyz)
+        target, dist = self.check_leg(xyz)
         delta = target - self.position
-        dist = float(np.linalg.norm(delta))
-        if dist <= 1e-6:
-            raise ValueError(f"fly_to({tuple(target)}): already there; a leg must move")
         speed = self.config.mission.speed
         duration = dist / speed
-        if duration > self.remaining_s + _TOL:
-            raise BudgetExceededError(
-                f"leg of {dist:.2f} m takes {duration:.2f} s but only {self.remaining_s:.2f} s of the "
-                f"{self.budget_s:.0f} s budget remain")
         s = leg_samples(dist, self._since_measurement, self.config.mission.measurement_spacing)
         points = self.position + np.outer(s / dist, delta)
         times = self.time_s + s / speed
@@ -163,20 +170,30 @@ class Mission:
         return Leg(duration, dist, n, self.time_s)
 
     def _measure(self, points, times) -> int:
-        """Read the camera at ``points`` (times ``times``) and assimilate, split at report times."""
+        """Read the camera at ``points`` (times ``times``) and fuse the read-outs.
+
+        The hook a simulated world overrides (the MuJoCo mission reads its rendered camera here).
+        """
+        records = []
+        for p, t in zip(np.asarray(points), np.asarray(times)):
+            obs, z = self.sensor.measure(p, self._truth_flat, self.rng)
+            self.measurement_log.append((float(t), *map(float, p)))
+            records.append((obs, z, float(t)))
+        return self.assimilate_records(records)
+
+    def assimilate_records(self, records: list[tuple[Observation | None, np.ndarray | None, float]]) -> int:
+        """Fuse time-stamped read-outs ``(observation or None, z, time)``, in one batch update per
+        stretch between report times, so that ``metrics_at`` a report time is exact."""
+        if not records:
+            self.assimilate([], [], self.time_s)
+            return 0
         report = np.asarray(self.config.mission.report_times)
-        groups = np.searchsorted(report, np.asarray(times) - _TOL, side="left")
+        groups = np.searchsorted(report, np.array([t for _, _, t in records]) - _TOL, side="left")
         count = 0
         for g in np.unique(groups):
-            obs_list, zs, last_t = [], [], 0.0
-            for p, t in zip(np.asarray(points)[groups == g], np.asarray(times)[groups == g]):
-                obs, z = self.sensor.measure(p, self._truth_flat, self.rng)
-                self.measurement_log.append((float(t), *map(float, p)))
-                last_t = float(t)
-                if obs is not None:
-                    obs_list.append(obs)
-                    zs.append(z)
-            count += self.assimilate(obs_list, zs, last_t)
+            chosen = [r for r, gi in zip(records, groups) if gi == g]
+            seen = [(o, z) for o, z, _ in chosen if o is not None]
+            count += self.assimilate([o for o, _ in seen], [z for _, z in seen], chosen[-1][2])
         return count
 
     def assimilate(self, observations: list[Observation], zs: list[np.ndarray], time_s: float) -> int:

@@ -43,7 +43,7 @@ import shlex
 import signal
 import sys
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, Callable
 
@@ -62,6 +62,7 @@ class TrainArgs:
     """Every option of ``ipp-bench train`` with its default (the paper's values where it has one)."""
 
     task: str = "ipp_bench/Grid15-v0"
+    env: list[str] = field(default_factory=list)  # KEY=VALUE overrides of the task config (budget_s=200)
     total_steps: int = 200_000  # PPO environment steps (the warm start comes on top)
     n_envs: int = 5  # paper: five parallel instances
     n_steps: int = 128  # steps per env per PPO rollout: 5 x 128 = 640 samples = 5 batches
@@ -108,6 +109,9 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     d = TrainArgs()
     a = parser.add_argument
     a("--task", default=None, help=f"gymnasium task id to train on (default {d.task})")
+    a("--env", metavar="KEY=VALUE", action="append", default=None,
+      help="override a field of the task config for training, e.g. --env budget_s=200 (repeatable; "
+           "values are read as JSON where they parse)")
     a("--total-steps", type=int, default=None, help=f"PPO environment steps (default {d.total_steps})")
     a("--n-envs", type=int, default=None, help=f"parallel environments (default {d.n_envs}, the paper's 5)")
     a("--device", default=None, help="torch device: auto, cpu or cuda (default auto)")
@@ -175,6 +179,10 @@ def command_line(cfg: TrainArgs) -> str:
             continue
         if f.name in ("out", "device", "threads"):
             continue
+        if f.name == "env":
+            for item in val:
+                parts += ["--env", item]
+            continue
         parts += [f"--{f.name.replace('_', '-')}", str(val)]
     return shlex.join(parts)
 
@@ -199,6 +207,19 @@ def _check(cfg: TrainArgs) -> None:
     if cfg.device.startswith("cuda") and not torch.cuda.is_available():
         raise ValueError(f"--device {cfg.device} asked for but torch sees no CUDA device; use --device cpu")
     cfg.net_config()  # validates the network sizes
+    import gymnasium as gym
+
+    import ipp_bench.envs  # noqa: F401 - registers the tasks
+
+    if cfg.task not in gym.registry:
+        valid = sorted(t for t in gym.registry if t.startswith("ipp_bench/"))
+        raise ValueError(f"--task {cfg.task!r} is not a registered task: valid are {valid}")
+    if cfg.val_task and cfg.val_task not in gym.registry:
+        raise ValueError(f"--val-task {cfg.val_task!r} is not a registered task")
+    try:
+        make_train_env(cfg).close()  # a bad override fails now, with the config's message
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"--task {cfg.task} with --env {cfg.env}: {err}") from None
 
 
 def _resolve_device(name: str) -> torch.device:
@@ -230,6 +251,31 @@ def make_env(task: str, **overrides: Any):
     import ipp_bench.envs  # noqa: F401 - registers the tasks
 
     return gym.make(task, **overrides)
+
+
+def parse_env_overrides(items: list[str]) -> dict[str, Any]:
+    """``["budget_s=200"]`` -> ``{"budget_s": 200}`` (JSON where it parses, else text)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, eq, raw = item.partition("=")
+        if not eq or not key.strip():
+            raise ValueError(f"--env {item!r} is not KEY=VALUE (e.g. --env budget_s=200)")
+        try:
+            out[key.strip()] = json.loads(raw)
+        except json.JSONDecodeError:
+            out[key.strip()] = raw.strip()
+    return out
+
+
+def make_train_env(cfg: "TrainArgs"):
+    """The training task with the run's ``--env`` overrides."""
+    return make_env(cfg.task, **parse_env_overrides(cfg.env))
+
+
+def _validation(net: AttentionNet, cfg: "TrainArgs", device: torch.device) -> dict[str, float]:
+    if cfg.val_task:
+        return evaluate_net(net, cfg.val_task, cfg.eval_episodes, device)
+    return evaluate_net(net, cfg.task, cfg.eval_episodes, device, overrides=parse_env_overrides(cfg.env))
 
 
 def make_expert(name: str) -> "_PlannerExpert":
@@ -301,7 +347,7 @@ def net_action(net: AttentionNet, obs: dict, device: torch.device, deterministic
 
 
 def evaluate_net(net: AttentionNet, task: str, episodes: int, device: torch.device,
-                 seed0: int = VAL_SEED0) -> dict[str, float]:
+                 seed0: int = VAL_SEED0, overrides: dict[str, Any] | None = None) -> dict[str, float]:
     """Deterministic (argmax) episodes of ``task`` on fixed seeds.
 
     Every second episode starts at the node nearest the default start of
@@ -316,7 +362,7 @@ def evaluate_net(net: AttentionNet, task: str, episodes: int, device: torch.devi
     from ipp_bench.config import MissionConfig
     from ipp_bench.mission import cell_to_xyz
 
-    env = make_env(task)
+    env = make_env(task, **(overrides or {}))
     base = env.unwrapped
     times = base.config.mission.report_times
     budget = base.config.mission.budget_s
@@ -472,7 +518,7 @@ def warm_start(cfg: TrainArgs, run: Path, device: torch.device, say: Callable[[s
     """Behaviour cloning (DAgger) from ``cfg.warm_start``; writes ``warmstart/bc.pt``."""
     out = run / "warmstart"
     out.mkdir(exist_ok=True)
-    env = make_env(cfg.task)
+    env = make_train_env(cfg)
     expert = make_expert(cfg.warm_start)
     torch.manual_seed(cfg.seed)
     net = AttentionNet(cfg.net_config()).to(device)
@@ -503,7 +549,7 @@ def warm_start(cfg: TrainArgs, run: Path, device: torch.device, say: Callable[[s
                log=lambda r: (log({"phase": "fit", **r}),
                               say(f"  epoch {r['epoch']}: loss_pi {r['loss_pi']:.3f} loss_v {r['loss_v']:.3f} "
                                   f"acc {r['acc']:.3f} target_p {r['target_p']:.3f}")))
-    val = evaluate_net(net, cfg.val_task or cfg.task, cfg.eval_episodes, device)
+    val = _validation(net, cfg, device)
     log({"phase": "validate", **val})
     say("warm start done in %.0f s; validation: %s" % (time.time() - t0, _fmt(val)))
     save_checkpoint(net, out / "bc.pt", meta={"task": cfg.task, "phase": "warm start",
@@ -593,7 +639,7 @@ def _make_callback(cfg: TrainArgs, run: Path, device: torch.device, state: dict,
 
         def validate(self, n: int) -> None:
             net = self.model.policy.attention_net()
-            val = evaluate_net(net, cfg.val_task or cfg.task, cfg.eval_episodes, device)
+            val = _validation(net, cfg, device)
             self.model.policy.set_training_mode(False)
             for key, v in val.items():
                 self.logger.record(key, v)
@@ -633,7 +679,7 @@ def _vec_env(cfg: TrainArgs):
 
     def thunk(i: int):
         def make():
-            return Monitor(make_env(cfg.task))
+            return Monitor(make_train_env(cfg))
         return make
 
     # Envs step in ~1 ms; the network dominates, so they run in this process (no subprocesses).

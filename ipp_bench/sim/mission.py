@@ -26,7 +26,7 @@ import numpy as np
 
 from ipp_bench.belief import GPBelief
 from ipp_bench.config import IPPConfig
-from ipp_bench.mission import BudgetExceededError, Leg, Mission
+from ipp_bench.mission import Leg, Mission
 from ipp_bench.sensor import Observation
 from ipp_bench.sim.controller import Leg as Reference
 from ipp_bench.sim.world import WeedWorld
@@ -74,15 +74,7 @@ class MuJoCoMission(Mission):
             BudgetExceededError: the leg's nominal time (length / speed) exceeds the remaining budget.
             ValueError: ``xyz`` is off the map or equals the current position.
         """
-        target = self._check_xyz(xyz)
-        dist = float(np.linalg.norm(target - self.position))
-        if dist <= 1e-6:
-            raise ValueError(f"fly_to({tuple(target)}): already there; a leg must move")
-        speed = self.config.mission.speed
-        if dist / speed > self.remaining_s + _TOL:
-            raise BudgetExceededError(
-                f"leg of {dist:.2f} m takes {dist / speed:.2f} s but only {self.remaining_s:.2f} s of the "
-                f"{self.budget_s:.0f} s budget remain")
+        target, dist = self.check_leg(xyz)
         spacing = self.config.mission.measurement_spacing
         flight, data, adr = self.flight, self.world.scene.data, self.world.scene.qpos_adr
         t0 = flight.time_s
@@ -113,7 +105,7 @@ class MuJoCoMission(Mission):
         self.position = self._inside(flight.position)
         self._since_measurement = state["since"]
         self.path.append((self.time_s, *self.position))
-        n = self._assimilate_records(records)
+        n = self.assimilate_records(records)
         return Leg(self.time_s - t0, state["flown"], n, self.time_s)
 
     def _inside(self, p: np.ndarray) -> np.ndarray:
@@ -129,20 +121,5 @@ class MuJoCoMission(Mission):
     def _measure(self, points, times) -> int:
         """The core calls this once, for the read-out at the start: take it with the camera."""
         del points  # the drone is where it is
-        return self._assimilate_records([self._read(float(t)) for t in times])
+        return self.assimilate_records([self._read(float(t)) for t in times])
 
-    def _assimilate_records(self, records) -> int:
-        """Fuse read-outs in batches split at the report times (as the core does)."""
-        if not records:
-            self.assimilate([], [], self.time_s)
-            return 0
-        report = np.asarray(self.config.mission.report_times)
-        times = np.array([t for _, _, t in records])
-        groups = np.searchsorted(report, times - _TOL, side="left")
-        count = 0
-        for g in np.unique(groups):
-            chosen = [r for r, gi in zip(records, groups) if gi == g]
-            obs = [o for o, _, _ in chosen if o is not None]
-            zs = [z for o, z, _ in chosen if o is not None]
-            count += self.assimilate(obs, zs, chosen[-1][2])
-        return count

@@ -31,6 +31,7 @@ def _decisions(planner_spec: str, task: str, n: int, seed: int = 0) -> np.ndarra
     """Seconds per ``act`` call over ``n`` decisions of real episodes."""
     import gymnasium as gym
 
+    import ipp_bench.envs  # noqa: F401 - registers the tasks
     from ipp_bench.planners import make_planner
     from ipp_bench.planners.base import RobotView
 
@@ -58,17 +59,15 @@ def _row(name: str, t: np.ndarray) -> dict:
 
 
 def bench_decisions(args) -> list[dict]:
-    import torch
 
     rows = []
     for threads in (1, 2):
-        torch.set_num_threads(threads)
+        spec = f"attention:threads={threads}"
         for task, nodes in (("ipp_bench/Grid15Eval-v0", 450), ("ipp_bench/Grid20Eval-v0", 800)):
-            _decisions("attention", task, 20)  # warm-up
-            t = _decisions("attention", task, args.decisions)
+            _decisions(spec, task, 20)  # warm-up
+            t = _decisions(spec, task, args.decisions)
             rows.append(_row(f"attention, {nodes} nodes, {threads} thread(s)", t))
             print(_fmt(rows[-1]), flush=True)
-    torch.set_num_threads(args.threads)
     t = _decisions("greedy", "ipp_bench/Grid15Eval-v0", args.decisions)
     rows.append(_row("greedy, 450 nodes", t))
     print(_fmt(rows[-1]), flush=True)
@@ -80,7 +79,7 @@ def bench_decisions(args) -> list[dict]:
         else:
             rows.append(_row("mcts (default settings), 450 nodes", t))
             print(_fmt(rows[-1]), flush=True)
-            att = next(r for r in rows if r["what"] == f"attention, 450 nodes, {args.threads} thread(s)")
+            att = next(r for r in rows if r["what"] == "attention, 450 nodes, 1 thread(s)")
             print(f"MCTS / attention median per-decision time: {rows[-1]['median_ms'] / att['median_ms']:.0f}x")
     return rows
 
@@ -91,22 +90,24 @@ def bench_training(args) -> list[dict]:
 
     from ipp_bench.policies.network import AttentionNet
     from ipp_bench.policies.sb3 import AttentionPolicy
-    from ipp_bench.policies.train import TrainArgs, _vec_env, collect_episodes, fit_bc, BCDataset, make_env, \
-        make_expert
+    from ipp_bench.policies.train import BCDataset, TrainArgs, _vec_env, collect_episodes, fit_bc, make_env, make_expert
 
-    torch.set_num_threads(args.threads)
     cfg = TrainArgs(n_envs=5, n_steps=128, n_epochs=args.n_epochs, batch_size=128)
     venv = _vec_env(cfg)
     model = MaskablePPO(AttentionPolicy, venv, n_steps=cfg.n_steps, batch_size=cfg.batch_size,
                         n_epochs=cfg.n_epochs, learning_rate=2e-5, seed=0, device="cpu")
-    model.learn(cfg.n_envs * cfg.n_steps)  # warm-up
-    steps = cfg.n_envs * cfg.n_steps * args.ppo_rollouts
-    t = time.perf_counter()
-    model.learn(steps, reset_num_timesteps=False)
-    dt = time.perf_counter() - t
-    rows = [{"what": f"PPO env-steps/s (5 envs x 128 steps, {cfg.n_epochs} epochs, batch 128)",
-             "steps": steps, "seconds": dt, "steps_per_s": steps / dt}]
-    print(f"{rows[-1]['what']}: {rows[-1]['steps_per_s']:.1f} over {steps} steps", flush=True)
+    rows = []
+    for threads in args.train_threads:
+        torch.set_num_threads(threads)
+        model.learn(cfg.n_envs * cfg.n_steps, reset_num_timesteps=False)  # warm-up
+        steps = cfg.n_envs * cfg.n_steps * args.ppo_rollouts
+        t = time.perf_counter()
+        model.learn(steps, reset_num_timesteps=False)
+        dt = time.perf_counter() - t
+        rows.append({"what": f"PPO env-steps/s (5 envs x 128 steps, {cfg.n_epochs} epochs, batch 128, "
+                             f"{threads} thread(s))", "steps": steps, "seconds": dt, "steps_per_s": steps / dt})
+        print(f"{rows[-1]['what']}: {rows[-1]['steps_per_s']:.1f} over {steps} steps", flush=True)
+    torch.set_num_threads(args.train_threads[0])
 
     env = make_env(cfg.task)
     data = BCDataset()
@@ -136,9 +137,10 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--decisions", type=int, default=300, help="decisions timed per setting")
     p.add_argument("--mcts-decisions", type=int, default=5, help="MCTS decisions timed (0: skip)")
-    p.add_argument("--threads", type=int, default=2, help="torch threads for the training figures")
+    p.add_argument("--train-threads", type=int, nargs="+", default=[1, 2],
+                   help="torch threads for the training figures (each measured; the first for the warm start)")
     p.add_argument("--n-epochs", type=int, default=4, help="PPO epochs in the throughput figure")
-    p.add_argument("--ppo-rollouts", type=int, default=4, help="PPO rollouts (of 640 steps) timed")
+    p.add_argument("--ppo-rollouts", type=int, default=3, help="PPO rollouts (of 640 steps) timed")
     p.add_argument("--skip-training", action="store_true")
     p.add_argument("--json", help="also write the figures to this file")
     args = p.parse_args()

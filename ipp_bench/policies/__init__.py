@@ -24,4 +24,4 @@ from ipp_bench.policies.checkpoint import (
 )
 from ipp_bench.policies.network import AttentionNet, NetConfig
 
-__all__ = ["AttentionNet", "NetConfig", "CheckpointError", "SHIPPED_CHECKPOINT", "load_checkpoint", "save_checkpoint"]
+__all__ = ["SHIPPED_CHECKPOINT", "AttentionNet", "CheckpointError", "NetConfig", "load_checkpoint", "save_checkpoint"]

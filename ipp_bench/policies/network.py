@@ -173,7 +173,7 @@ class AttentionEncoder(nn.Module):
         budget: torch.Tensor,
     ) -> torch.Tensor:
         """Encoder output of the current node and its neighbours, (B, 1 + k, d)."""
-        b, n, f = node_features.shape
+        b, _, f = node_features.shape
         lay = self.layer
         heads = lay.n_heads
         d = self.cfg.embed_dim

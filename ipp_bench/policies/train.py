@@ -43,9 +43,10 @@ import shlex
 import signal
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -92,7 +93,7 @@ class TrainArgs:
     checkpoint_every: int = 20_000  # [steps] keep checkpoints/step_<n>.zip
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda
-    threads: int = 0  # torch threads; 0 = the CPUs available to this process
+    threads: int = 0  # torch threads; 0 = half the CPUs available to this process, at least 1
     out: str = ""  # run folder
     progress: bool = True
 
@@ -118,7 +119,8 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     a("--out", default=None, help="run folder (default runs/<task>__attention__<seed>__<time>)")
     a("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     a("--seed", type=int, default=None, help=f"seed (default {d.seed})")
-    a("--threads", type=int, default=None, help="torch threads (default: the CPUs available)")
+    a("--threads", type=int, default=None,
+      help="torch intra-op threads (default: half the CPUs available, at least 1; 1 on a 2-core machine)")
     g = parser.add_argument_group("PPO (paper values as defaults)")
     g.add_argument("--learning-rate", type=float, default=None, help=f"Adam learning rate (default {d.learning_rate})")
     g.add_argument("--n-epochs", type=int, default=None, help=f"epochs per rollout (default {d.n_epochs})")
@@ -236,8 +238,14 @@ def _available_cpus() -> int:
 
 
 def set_threads(n: int = 0) -> int:
-    """Torch intra-op threads: ``n``, or the CPUs available to this process (2 on the dev box)."""
-    n = n or _available_cpus()
+    """Torch intra-op threads: ``n``, or half the CPUs available to this process (at least 1).
+
+    Measured on the 2-core development machine while other jobs ran (load average about 3): PPO
+    made 145 env-steps/s with one torch thread and 7 with two, and a 450-node forward pass took
+    1.5 ms with one thread and 200 ms with two (OpenMP threads waiting on each other whenever one
+    is descheduled). Half the CPUs leaves room for the environments and for other processes.
+    """
+    n = n or max(1, _available_cpus() // 2)
     torch.set_num_threads(n)
     return n
 
@@ -267,18 +275,18 @@ def parse_env_overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def make_train_env(cfg: "TrainArgs"):
+def make_train_env(cfg: TrainArgs):
     """The training task with the run's ``--env`` overrides."""
     return make_env(cfg.task, **parse_env_overrides(cfg.env))
 
 
-def _validation(net: AttentionNet, cfg: "TrainArgs", device: torch.device) -> dict[str, float]:
+def _validation(net: AttentionNet, cfg: TrainArgs, device: torch.device) -> dict[str, float]:
     if cfg.val_task:
         return evaluate_net(net, cfg.val_task, cfg.eval_episodes, device)
     return evaluate_net(net, cfg.task, cfg.eval_episodes, device, overrides=parse_env_overrides(cfg.env))
 
 
-def make_expert(name: str) -> "_PlannerExpert":
+def make_expert(name: str) -> _PlannerExpert:
     """``expert(env, obs) -> action index`` from the planner registry (``greedy``, ``mcts``, ...)."""
     try:
         from ipp_bench.planners import make_planner
@@ -551,7 +559,7 @@ def warm_start(cfg: TrainArgs, run: Path, device: torch.device, say: Callable[[s
                                   f"acc {r['acc']:.3f} target_p {r['target_p']:.3f}")))
     val = _validation(net, cfg, device)
     log({"phase": "validate", **val})
-    say("warm start done in %.0f s; validation: %s" % (time.time() - t0, _fmt(val)))
+    say(f"warm start done in {time.time() - t0:.0f} s; validation: {_fmt(val)}")
     save_checkpoint(net, out / "bc.pt", meta={"task": cfg.task, "phase": "warm start",
                                                "expert": cfg.warm_start, "samples": len(data),
                                                "wall_s": time.time() - t0, **val})
@@ -629,9 +637,9 @@ def _make_callback(cfg: TrainArgs, run: Path, device: torch.device, state: dict,
             self.logger.record("time/steps_per_s", fps)
             self.t_last, self.steps_last = now, n
             ck = run / "checkpoints"
-            self.model.save(ck / "latest.zip")
+            _atomic_save(self.model, ck / "latest.zip")
             if n // cfg.checkpoint_every > state.get("ppo_steps", 0) // cfg.checkpoint_every:
-                self.model.save(ck / f"step_{n:09d}.zip")
+                _atomic_save(self.model, ck / f"step_{n:09d}.zip")
             if n // cfg.eval_every > state.get("ppo_steps", 0) // cfg.eval_every or n >= cfg.total_steps:
                 self.validate(n)
             state["ppo_steps"] = n
@@ -647,7 +655,7 @@ def _make_callback(cfg: TrainArgs, run: Path, device: torch.device, state: dict,
             msg = f"step {n}: validation {_fmt(val)}"
             if val["val/score"] > best:
                 state["best_score"], state["best_step"] = val["val/score"], n
-                self.model.save(run / "checkpoints" / "best.zip")
+                _atomic_save(self.model, run / "checkpoints" / "best.zip")
                 save_checkpoint(net, run / "export.pt", meta=_meta(cfg, state, n, val))
                 msg += " (best)"
             say(msg)
@@ -658,6 +666,13 @@ def _make_callback(cfg: TrainArgs, run: Path, device: torch.device, state: dict,
                 self.bar.close()
 
     return TrainCallback()
+
+
+def _atomic_save(model, path: Path) -> None:
+    """``model.save`` to a temporary file, then rename: an interrupt never leaves a broken archive."""
+    tmp = path.with_name(path.stem + ".tmp.zip")
+    model.save(tmp)
+    tmp.replace(path)
 
 
 def _meta(cfg: TrainArgs, state: dict, steps: int, val: dict) -> dict:

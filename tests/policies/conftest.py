@@ -4,6 +4,11 @@ import pytest
 torch = pytest.importorskip("torch")
 
 
+# One intra-op thread: these tests run tiny batches, and two OpenMP threads on a shared 2-core
+# machine were measured 100x slower than one (see ipp_bench.policies.train.set_threads).
+torch.set_num_threads(1)
+
+
 @pytest.fixture(autouse=True)
 def _torch_seed():
     torch.manual_seed(0)

@@ -6,16 +6,16 @@ import torch
 
 gym = pytest.importorskip("gymnasium")
 
-import ipp_bench.envs  # noqa: E402,F401
-from ipp_bench.planners import make_planner  # noqa: E402
-from ipp_bench.planners.base import RobotView  # noqa: E402
-from ipp_bench.policies.checkpoint import (  # noqa: E402
+import ipp_bench.envs  # noqa: F401
+from ipp_bench.planners import make_planner
+from ipp_bench.planners.base import RobotView
+from ipp_bench.policies.checkpoint import (
     SHIPPED_CHECKPOINT,
     CheckpointError,
     load_checkpoint,
     save_checkpoint,
 )
-from ipp_bench.policies.network import AttentionNet, NetConfig  # noqa: E402
+from ipp_bench.policies.network import AttentionNet, NetConfig
 
 
 @pytest.fixture(scope="module")
@@ -109,6 +109,6 @@ def test_observation_mismatch_is_reported(small_ckpt):
 def test_shipped_checkpoint_loads_and_acts():
     assert SHIPPED_CHECKPOINT.is_file(), f"the trained checkpoint must ship at {SHIPPED_CHECKPOINT}"
     assert SHIPPED_CHECKPOINT.stat().st_size < 5 * 2**20
-    net, meta = load_checkpoint()
+    _, meta = load_checkpoint()
     assert "command" in meta and meta["command"].startswith("ipp-bench train")
     _fly(make_planner("attention"), steps=20)

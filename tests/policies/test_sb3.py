@@ -7,10 +7,10 @@ import torch
 pytest.importorskip("sb3_contrib")
 gym = pytest.importorskip("gymnasium")
 
-import ipp_bench.envs  # noqa: E402,F401
-from sb3_contrib import MaskablePPO  # noqa: E402
+from sb3_contrib import MaskablePPO
 
-from ipp_bench.policies.sb3 import AttentionPolicy, PointerActionNet  # noqa: E402
+import ipp_bench.envs  # noqa: F401
+from ipp_bench.policies.sb3 import AttentionPolicy, PointerActionNet
 
 
 @pytest.fixture(scope="module")

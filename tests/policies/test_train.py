@@ -8,8 +8,8 @@ import pytest
 
 pytest.importorskip("sb3_contrib")
 
-from ipp_bench.policies.checkpoint import load_checkpoint  # noqa: E402
-from ipp_bench.policies.train import TrainArgs, add_train_arguments, command_line, soft_target  # noqa: E402
+from ipp_bench.policies.checkpoint import load_checkpoint
+from ipp_bench.policies.train import TrainArgs, add_train_arguments, command_line, soft_target
 
 TINY = ["--task", "ipp_bench/Grid15-v0", "--n-envs", "1", "--n-steps", "32", "--batch-size", "32",
         "--n-epochs", "1", "--embed-dim", "16", "--n-heads", "2", "--ff-dim", "32",
@@ -20,7 +20,7 @@ TINY = ["--task", "ipp_bench/Grid15-v0", "--n-envs", "1", "--n-steps", "32", "--
 
 def _train(*args, check=True):
     cmd = [sys.executable, "-m", "ipp_bench.cli", "train", *args]  # what `ipp-bench train` runs
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
     if check and proc.returncode != 0:
         raise AssertionError(f"{cmd} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return proc

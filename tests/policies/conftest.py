@@ -9,6 +9,15 @@ torch = pytest.importorskip("torch")
 torch.set_num_threads(1)
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _sb3_logs_in_tmp(tmp_path_factory):
+    """SB3 writes a logger folder under $TMPDIR/SB3-<date> for every ``learn``; keep it in pytest's tmp."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3_logs")))
+    yield
+    mp.undo()
+
+
 @pytest.fixture(autouse=True)
 def _torch_seed():
     torch.manual_seed(0)

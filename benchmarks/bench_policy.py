@@ -59,7 +59,6 @@ def _row(name: str, t: np.ndarray) -> dict:
 
 
 def bench_decisions(args) -> list[dict]:
-
     rows = []
     for threads in (1, 2):
         spec = f"attention:threads={threads}"

@@ -6,10 +6,16 @@ updates the belief, and records time-stamped metrics so that their values at any
 (50 / 100 / 150 / 200 s) can be read afterwards. Measurements of one leg go into one batch Kalman
 update (equal to sequential updates), split at the report times so that ``metrics_at`` is exact.
 Graph environments, continuous planners and the MuJoCo deployment all drive a ``Mission``.
+
+The mission owns the clock: :meth:`Mission.leg_durations` is the one rule of what a straight leg
+costs (length / speed here; the MuJoCo mission adds its velocity ramps), and
+:meth:`Mission.affordable` the one rule of which legs the remaining budget can pay for. Action
+masks, the robot's view and every look-ahead planner ask these two, never the speed.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -19,7 +25,10 @@ from .belief import GPBelief
 from .config import IPPConfig
 from .sensor import Observation, Sensor, stack
 
-_TOL = 1e-9
+#: [s] a leg that overruns the remaining budget by less than this still fits (float round-off);
+#: also the slack of "at or before" comparisons of mission times.
+TIME_TOL_S = 1e-9
+_LENGTH_TOL_M = 1e-9  # [m] a read-out this close to the arrival point is the arrival read-out
 
 
 class BudgetExceededError(ValueError):
@@ -55,8 +64,26 @@ def leg_samples(length: float, since_last: float, spacing: float) -> np.ndarray:
     Every ``spacing`` metres travelled, counting the ``since_last`` metres flown since the last
     measurement before the leg, and once on arrival. Planners predict with the same rule.
     """
-    s = np.arange(spacing - since_last, length - _TOL, spacing)
-    return np.append(s[s > _TOL], length)
+    s = np.arange(spacing - since_last, length - _LENGTH_TOL_M, spacing)
+    return np.append(s[s > _LENGTH_TOL_M], length)
+
+
+def leg_length(start, end) -> float:
+    """Length [m] of the straight leg ``start -> end`` (the one formula every leg is measured by)."""
+    d = np.asarray(end, dtype=np.float64) - np.asarray(start, dtype=np.float64)
+    return math.sqrt(d.dot(d))
+
+
+def leg_lengths(start, ends) -> np.ndarray:
+    """(K,) lengths [m] of the legs from ``start`` to each of the (K, 3) ``ends``, each exactly
+    :func:`leg_length` (row by row: a vectorised norm rounds differently in the last bit)."""
+    d = np.asarray(ends, dtype=np.float64).reshape(-1, 3) - np.asarray(start, dtype=np.float64)
+    return np.array([math.sqrt(v.dot(v)) for v in d], dtype=np.float64)
+
+
+def fits_budget(duration_s, remaining_s):
+    """Whether legs of ``duration_s`` [s] fit ``remaining_s`` [s] (the one tolerance: TIME_TOL_S)."""
+    return np.asarray(duration_s) <= remaining_s + TIME_TOL_S
 
 
 def cell_to_xyz(config: IPPConfig, col: float, row: float, altitude: float) -> np.ndarray:
@@ -74,10 +101,12 @@ class Mission:
         rng: generator of the sensor noise.
         start_xyz: start position [m].
         belief: initial belief (default: the GP prior of ``config.gp``).
+        sensor: the camera model (default: built from ``config``; an env passes its own, so that
+            it builds one).
     """
 
     def __init__(self, config: IPPConfig, truth: np.ndarray, rng: np.random.Generator,
-                 start_xyz, belief: GPBelief | None = None):
+                 start_xyz, belief: GPBelief | None = None, sensor: Sensor | None = None):
         g = config.grid
         truth = np.array(truth, dtype=np.float64)
         if truth.shape != (g.rows, g.cols):
@@ -87,7 +116,7 @@ class Mission:
         self.truth = truth
         self._truth_flat = truth.reshape(-1)
         self.rng = rng
-        self.sensor = Sensor(g, config.sensor)
+        self.sensor = sensor if sensor is not None else Sensor(g, config.sensor)
         self.belief = belief if belief is not None else GPBelief.from_grid(
             (g.rows, g.cols), g.resolution, config.gp.length_scale, config.gp.signal_variance,
             config.gp.prior_mean)
@@ -114,12 +143,18 @@ class Mission:
     def remaining_s(self) -> float:
         return max(self.budget_s - self.time_s, 0.0)
 
-    def leg_time(self, xyz) -> float:
-        """Flight time [s] of the straight line from here to ``xyz`` at the mission speed."""
-        return float(np.linalg.norm(np.asarray(xyz, dtype=np.float64) - self.position)) / self.config.mission.speed
+    def leg_durations(self, start_xyz, end_xyzs) -> np.ndarray:
+        """(K,) flight times [s] of the straight legs from ``start_xyz`` to each of the (K, 3)
+        ``end_xyzs``: length / speed. The one rule of what a leg costs (subclasses change it)."""
+        return leg_lengths(start_xyz, end_xyzs) / self.config.mission.speed
 
-    def can_reach(self, xyz) -> bool:
-        return self.leg_time(xyz) <= self.remaining_s + _TOL
+    def leg_time(self, xyz) -> float:
+        """Flight time [s] of the leg from the current position to ``xyz``."""
+        return float(self.leg_durations(self.position, xyz)[0])
+
+    def affordable(self, end_xyzs) -> np.ndarray:
+        """(K,) bool: which legs from the current position the remaining budget can pay for."""
+        return fits_budget(self.leg_durations(self.position, end_xyzs), self.remaining_s)
 
     # -- flight -------------------------------------------------------------------------------
     def check_position(self, xyz) -> np.ndarray:
@@ -137,11 +172,11 @@ class Mission:
     def check_leg(self, xyz) -> tuple[np.ndarray, float]:
         """Validate a leg to ``xyz``: returns (target, length [m]) or raises as ``fly_to`` does."""
         target = self.check_position(xyz)
-        dist = float(np.linalg.norm(target - self.position))
+        dist = leg_length(self.position, target)
         if dist <= 1e-6:
             raise ValueError(f"fly_to({tuple(target)}): already there; a leg must move")
-        duration = dist / self.config.mission.speed
-        if duration > self.remaining_s + _TOL:
+        duration = self.leg_time(target)
+        if not fits_budget(duration, self.remaining_s):
             raise BudgetExceededError(
                 f"leg of {dist:.2f} m takes {duration:.2f} s but only {self.remaining_s:.2f} s of the "
                 f"{self.budget_s:.0f} s budget remain")
@@ -157,7 +192,7 @@ class Mission:
         target, dist = self.check_leg(xyz)
         delta = target - self.position
         speed = self.config.mission.speed
-        duration = dist / speed
+        duration = self.leg_time(target)
         s = leg_samples(dist, self._since_measurement, self.config.mission.measurement_spacing)
         points = self.position + np.outer(s / dist, delta)
         times = self.time_s + s / speed
@@ -188,7 +223,7 @@ class Mission:
             self.assimilate([], [], self.time_s)
             return 0
         report = np.asarray(self.config.mission.report_times)
-        groups = np.searchsorted(report, np.array([t for _, _, t in records]) - _TOL, side="left")
+        groups = np.searchsorted(report, np.array([t for _, _, t in records]) - TIME_TOL_S, side="left")
         count = 0
         for g in np.unique(groups):
             chosen = [r for r, gi in zip(records, groups) if gi == g]
@@ -226,7 +261,7 @@ class Mission:
         """Evaluation metrics as of mission time ``time_s`` (the last record at or before it)."""
         rec = self.history[0]
         for r in self.history:
-            if r.time_s <= time_s + _TOL:
+            if r.time_s <= time_s + TIME_TOL_S:
                 rec = r
             else:
                 break

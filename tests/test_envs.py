@@ -107,6 +107,28 @@ def test_mask_and_termination_follow_the_budget():
     assert info["time_s"] <= 6.0 + 1e-9
 
 
+@pytest.mark.parametrize("task", sorted(envs.TASKS))
+def test_the_core_clock_gives_the_roadmap_edge_costs_bit_for_bit(task):
+    """The masks and look-ahead planners once read ``roadmap.costs``; they now ask the mission.
+    On every registered task's roadmap the core mission's durations are those costs, bit for bit
+    (so the committed baselines do not move)."""
+    from ipp_bench.mission import Mission
+    from ipp_bench.roadmap import Roadmap
+
+    cfg = envs.task_spec(task).config
+    rm = Roadmap.build(cfg.grid, cfg.graph, cfg.mission.speed)
+    mission = Mission(cfg, np.zeros((cfg.grid.rows, cfg.grid.cols)), np.random.default_rng(0), rm.positions[0])
+    got = np.stack([mission.leg_durations(rm.positions[i], rm.positions[rm.neighbours[i]])
+                    for i in range(rm.n_nodes)])
+    assert got.tobytes() == rm.costs.tobytes()
+
+
+def test_each_env_builds_one_sensor():
+    env = gym.make("ipp_bench/Grid15Eval-v0").unwrapped
+    env.reset(seed=0)
+    assert env.mission.sensor is env.sensor
+
+
 def test_reward_is_relative_belief_roi_trace_reduction():
     env = gym.make("ipp_bench/Grid15Eval-v0")
     env.reset(seed=1)

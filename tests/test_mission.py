@@ -79,3 +79,33 @@ def test_same_seed_same_measurements():
     for m in (a, b):
         m.fly_to(m.position + [10.0, 5.0, -6.0])
     np.testing.assert_array_equal(a.belief.mean, b.belief.mean)
+
+
+# -- the clock: one rule of what a leg costs -----------------------------------------------------
+def test_leg_durations_are_length_over_speed():
+    m = make(budget=100.0, speed=2.5)
+    start = np.array([1.0, 2.0, 8.0])
+    ends = np.array([[4.0, 6.0, 8.0], [1.0, 2.0, 14.0], [1.0, 2.0, 8.0]])  # 5 m, 6 m, 0 m
+    np.testing.assert_array_equal(m.leg_durations(start, ends), [2.0, 2.4, 0.0])
+    assert m.leg_time(m.position + [3.0, 4.0, 0.0]) == 2.0
+
+
+def test_affordable_is_duration_within_the_remaining_budget():
+    m = make(budget=10.0)  # speed 2 m/s: 20 m of flight
+    here = m.position
+    ends = here + np.array([[20.0, 0.0, 0.0], [20.0 + 1e-9, 0.0, 0.0], [21.0, 0.0, 0.0], [3.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(m.affordable(ends), [True, True, False, True])
+    m.fly_to(here + [10.0, 0.0, 0.0])  # 5 s used
+    np.testing.assert_array_equal(m.affordable(m.position + np.array([[10.0, 0, 0], [10.5, 0, 0]])), [True, False])
+
+
+def test_fly_to_refuses_exactly_what_affordable_refuses():
+    m = make(budget=10.0)
+    far = m.position + [21.0, 0.0, 0.0]
+    assert not m.affordable(far[None])[0]
+    with pytest.raises(BudgetExceededError):
+        m.fly_to(far)
+    near = m.position + [20.0, 0.0, 0.0]
+    assert m.affordable(near[None])[0]
+    m.fly_to(near)
+    assert m.time_s == 10.0 and m.remaining_s == 0.0

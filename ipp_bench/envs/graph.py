@@ -18,8 +18,6 @@ from ..roadmap import Roadmap
 from ..sensor import Sensor
 from .render import render_mission
 
-_TOL = 1e-9
-
 
 class GraphIPPEnv(gym.Env):
     """Adaptive 3D informative path planning on a probabilistic roadmap.
@@ -115,7 +113,7 @@ class GraphIPPEnv(gym.Env):
 
     def _make_mission(self, truth: np.ndarray, rng: np.random.Generator, start_xyz: np.ndarray) -> Mission:
         """The world of one episode; the MuJoCo deployment overrides this."""
-        return Mission(self.config, truth, rng, start_xyz)
+        return Mission(self.config, truth, rng, start_xyz, sensor=self.sensor)
 
     # -- gymnasium API ------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -140,9 +138,9 @@ class GraphIPPEnv(gym.Env):
         return self._observation(), self._info(0.0, 0.0)
 
     def action_masks(self) -> np.ndarray:
-        """(k,) bool: neighbours reachable within the remaining budget."""
+        """(k,) bool: neighbours whose leg the mission's remaining budget can pay for."""
         self._require_reset()
-        return self.roadmap.costs[self.current_node] <= self.mission.remaining_s + _TOL
+        return self.mission.affordable(self.roadmap.positions[self.roadmap.neighbours[self.current_node]])
 
     def step(self, action):
         self._require_reset()

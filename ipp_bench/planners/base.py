@@ -5,12 +5,13 @@ decision at a time: a neighbour index (``kind = "graph"``, like a policy on the 
 3D waypoint (``kind = "continuous"``, flown with ``Mission.fly_to``). The view holds what a real
 robot has (belief, roadmap, camera model, clock and budget) and nothing of the ground truth.
 Look-ahead planners predict information gain with the belief's covariance only
-(:meth:`RobotView.predict_leg_variance`), never by stepping the real episode.
+(:meth:`RobotView.predict_variance`), never by stepping the real episode. What a leg costs and
+whether the budget pays for it, they ask the mission's clock (:meth:`RobotView.leg_durations`,
+:meth:`RobotView.affordable`), never the speed.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
@@ -18,9 +19,15 @@ import numpy as np
 from .. import metrics as M
 from ..belief import GPBelief
 from ..config import IPPConfig
-from ..mission import leg_samples
+from ..mission import fits_budget, leg_length, leg_samples
 from ..roadmap import Roadmap
 from ..sensor import Observation, Sensor, stack
+
+
+#: [m] with less flight than this left, a continuous mission is over (no leg worth flying)
+MIN_FLIGHT_M = 0.5
+#: [m] legs shorter than this are no legs (the mission refuses them as "already there")
+MIN_LEG_M = 1e-6
 
 
 class RobotView:
@@ -70,6 +77,25 @@ class RobotView:
     def action_mask(self) -> np.ndarray:
         return self._env.action_masks()
 
+    def leg_durations(self, start_xyz, end_xyzs) -> np.ndarray:
+        """(K,) flight times [s] of the legs ``start_xyz -> end_xyzs`` by the mission's clock."""
+        return self._env.mission.leg_durations(start_xyz, end_xyzs)
+
+    def affordable(self, end_xyzs) -> np.ndarray:
+        """(K,) bool: which legs from the current position the remaining budget pays for."""
+        return self._env.mission.affordable(end_xyzs)
+
+    def neighbour_durations(self, node: int, from_xyz=None) -> np.ndarray:
+        """(k,) flight times [s] from node ``node`` (or from ``from_xyz``) to its neighbours."""
+        rm = self.roadmap
+        start = rm.positions[node] if from_xyz is None else from_xyz
+        return self.leg_durations(start, rm.positions[rm.neighbours[node]])
+
+    @staticmethod
+    def fits_budget(duration_s, remaining_s):
+        """Whether legs of ``duration_s`` fit ``remaining_s`` [s]: the mission's rule, for look-ahead."""
+        return fits_budget(duration_s, remaining_s)
+
     def belief_roi(self) -> np.ndarray:
         return self._env.mission.belief_roi()
 
@@ -78,8 +104,8 @@ class RobotView:
         """The read-outs the mission would take flying ``start -> end`` (same spacing rule)."""
         start = np.asarray(start, dtype=np.float64)
         delta = np.asarray(end, dtype=np.float64) - start
-        dist = float(np.linalg.norm(delta))
-        if dist <= 1e-6:
+        dist = leg_length(start, end)
+        if dist <= MIN_LEG_M:
             return []
         s = leg_samples(dist, 0.0, self.config.mission.measurement_spacing)
         out = []
@@ -150,18 +176,36 @@ class ContinuousPlanner(_PlannerBase):
     def next_waypoint(self) -> np.ndarray | None:
         raise NotImplementedError
 
+    def flight_left_m(self, margin_s: float = 1e-6) -> float:
+        """[m] the remaining budget (less ``margin_s``) flies at the nominal speed: an upper bound."""
+        view = self.view
+        return max(view.remaining_s - margin_s, 0.0) * view.config.mission.speed
+
     def affordable(self, target: np.ndarray, margin_s: float = 1e-6) -> np.ndarray | None:
-        """``target``, or the point on the way to it where the remaining budget runs out."""
+        """``target``, or the farthest point on the way to it that the mission's clock affords
+        (None: less than :data:`MIN_FLIGHT_M` of flight is left, the mission is over).
+
+        The nominal reach (remaining time x speed) is tried first: it is what the core mission
+        affords. A clock that charges more (MuJoCo's velocity ramps) gets the farthest affordable
+        fraction of the way by bisection.
+        """
         view = self.view
         here = view.position
         delta = np.asarray(target, dtype=np.float64) - here
-        dist = float(np.linalg.norm(delta))
-        reach = max(view.remaining_s - margin_s, 0.0) * view.config.mission.speed
-        if reach < 0.5 or dist <= 1e-6:  # under half a metre left: the mission is over
+        dist = leg_length(here, target)
+        reach = self.flight_left_m(margin_s)
+        if reach < MIN_FLIGHT_M or dist <= MIN_LEG_M:
             return None
-        return here + delta * min(1.0, reach / dist)
-
-
-@dataclasses.dataclass(frozen=True)
-class NoConfig:
-    """Planners without settings."""
+        point = here + delta * min(1.0, reach / dist)
+        if view.affordable(point[None])[0]:
+            return point
+        lo, hi = 0.0, min(1.0, reach / dist)
+        for _ in range(50):
+            mid = 0.5 * (lo + hi)
+            if view.affordable((here + delta * mid)[None])[0]:
+                lo = mid
+            else:
+                hi = mid
+        if lo * dist < MIN_FLIGHT_M:
+            return None
+        return here + delta * lo

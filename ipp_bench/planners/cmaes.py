@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import ContinuousPlanner
+from .base import MIN_FLIGHT_M, ContinuousPlanner
 
 
 @dataclass(frozen=True)
@@ -83,10 +83,14 @@ class CMAESPlanner(ContinuousPlanner):
         return pts
 
     def _path(self, pts: np.ndarray) -> tuple[list, float]:
-        """Observations along the path and its flight time, cut at the remaining budget."""
+        """Observations along the path and its flight time, cut at the remaining budget.
+
+        The objective's model of the flight is the nominal one (length / speed); the waypoint
+        actually flown is cut to what the mission's clock affords (:meth:`affordable`).
+        """
         view = self.view
         speed = view.config.mission.speed
-        left = max(view.remaining_s - 1e-6, 0.0) * speed  # [m]
+        left = self.flight_left_m()  # [m]
         here, obs, flown = view.position, [], 0.0
         for p in pts:
             dist = float(np.linalg.norm(p - here))
@@ -95,7 +99,7 @@ class CMAESPlanner(ContinuousPlanner):
             if dist > left:
                 p = here + (p - here) * (left / dist)
                 dist = left
-            if dist < 0.5:
+            if dist < MIN_FLIGHT_M:
                 break
             obs += view.leg_observations(here, p)
             flown += dist
@@ -115,7 +119,7 @@ class CMAESPlanner(ContinuousPlanner):
 
         view = self.view
         cfg = self.config
-        if view.remaining_s * view.config.mission.speed < 0.5:
+        if self.flight_left_m() < MIN_FLIGHT_M:  # then affordable() below would say None too
             return None
         self._belief = view.belief
         self._roi = view.belief_roi()

@@ -43,7 +43,7 @@ class GreedyPlanner(GraphPlanner):
         view = self.view
         node = int(obs["current_node"][0])
         gains = trace_reductions(view.belief.cov, self._batch(node), view.belief_roi())
-        scores = gains / view.roadmap.costs[node]
+        scores = gains / view.neighbour_durations(node, view.position)
         return np.where(obs["action_mask"].astype(bool), scores, -np.inf)
 
     def act(self, obs):

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..belief import LegBatch, downdate_inplace, gain_factor, trace_reductions
+from ..mission import TIME_TOL_S
 from ..sensor import stack
 from .base import GraphPlanner
 
@@ -85,13 +86,14 @@ class MCTSConfig:
 
 
 class _State:
-    __slots__ = ("node", "cov", "remaining", "elapsed", "order", "gains", "children", "visits")
+    __slots__ = ("node", "cov", "remaining", "elapsed", "costs", "order", "gains", "children", "visits")
 
-    def __init__(self, node: int, cov: np.ndarray, remaining: float, elapsed: float):
+    def __init__(self, node: int, cov: np.ndarray, remaining: float, elapsed: float, costs: np.ndarray):
         self.node = node
         self.cov = cov
         self.remaining = remaining  # [s] of budget
         self.elapsed = elapsed  # [s] flown since the root
+        self.costs = costs  # (k,) [s] flight time to each neighbour, by the mission's clock
         self.order: np.ndarray | None = None  # playable actions, best one-step gain/s first
         self.gains: np.ndarray | None = None  # one-step reward per action
         self.children: dict[int, list] = {}  # action -> [child, reward, discount, visits, value sum]
@@ -111,6 +113,7 @@ class MCTSPlanner(GraphPlanner):
         super().reset(view, seed)
         self._legs: dict[tuple[int, int], tuple | None] = {}
         self._batches: dict[int, LegBatch] = {}
+        self._costs: dict[int, np.ndarray] = {}
 
     # -- the model --------------------------------------------------------------------------
     def _leg(self, node: int, action: int):
@@ -128,14 +131,20 @@ class MCTSPlanner(GraphPlanner):
             self._batches[node] = batch
         return batch
 
+    def _node_costs(self, node: int) -> np.ndarray:
+        """(k,) flight times [s] from node ``node`` to its neighbours (the mission's clock; cached)."""
+        costs = self._costs.get(node)
+        if costs is None:
+            costs = self._costs[node] = self.view.neighbour_durations(node)
+        return costs
+
     def _expand_info(self, state: _State) -> None:
         """Playable actions and their one-step rewards, best reward per second first."""
-        rm = self.view.roadmap
-        costs = rm.costs[state.node]
-        if state.elapsed >= self.config.horizon_s - 1e-9:
+        costs = state.costs
+        if state.elapsed >= self.config.horizon_s - TIME_TOL_S:
             state.order = np.zeros(0, dtype=np.int64)
             return
-        actions = np.flatnonzero(costs <= state.remaining + 1e-9)
+        actions = np.flatnonzero(self.view.fits_budget(costs, state.remaining))
         state.gains = trace_reductions(state.cov, self._batch(state.node), self._roi) / self._unit
         rate = state.gains[actions] / costs[actions]
         state.order = actions[np.lexsort((actions, -rate))]
@@ -148,24 +157,24 @@ class MCTSPlanner(GraphPlanner):
         if leg is not None:
             cov = cov.copy()
             downdate_inplace(cov, gain_factor(cov, *leg)[0])
-        cost = float(rm.costs[state.node, action])
+        cost = float(state.costs[action])
         cfg = self.config
         share = min(1.0, (cfg.horizon_s - state.elapsed) / cost)
-        child = _State(int(rm.neighbours[state.node, action]), cov, state.remaining - cost, state.elapsed + cost)
+        node = int(rm.neighbours[state.node, action])
+        child = _State(node, cov, state.remaining - cost, state.elapsed + cost, self._node_costs(node))
         discount = cfg.gamma ** (cost / cfg.discount_period_s)
         return child, share * float(state.gains[action]), discount
 
     # -- search -----------------------------------------------------------------------------
     def _rollout(self, state: _State) -> float:
         cfg = self.config
-        rm = self.view.roadmap
         total, discount = 0.0, 1.0
         while True:
             self._expand_info(state)
             acts = state.order
             if acts.size == 0:
                 break
-            rate = state.gains[acts] / rm.costs[state.node, acts]
+            rate = state.gains[acts] / state.costs[acts]
             top = rate.max()
             if top <= 0:
                 break
@@ -208,7 +217,8 @@ class MCTSPlanner(GraphPlanner):
         node = int(obs["current_node"][0])
         self._roi = view.belief_roi()
         self._unit = 1.0
-        root = _State(node, view.belief.cov, view.remaining_s, 0.0)
+        # from where the robot is (on the graph tasks, exactly the node; in MuJoCo, near it)
+        root = _State(node, view.belief.cov, view.remaining_s, 0.0, view.neighbour_durations(node, view.position))
         self._expand_info(root)
         if root.order.size == 0:
             raise ValueError("mcts: no affordable neighbour; the episode should have ended")

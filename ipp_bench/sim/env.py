@@ -15,8 +15,6 @@ from ipp_bench.sim.mission import MuJoCoMission
 from ipp_bench.sim.render import azimuth_to_centre, chase_camera
 from ipp_bench.sim.world import SimConfig, WeedWorld
 
-_TOL = 1e-9
-
 
 class MuJoCoIPPEnv(GraphIPPEnv):
     """Adaptive 3D IPP on the roadmap, deployed in MuJoCo (the paper's Gazebo weed-field setting).
@@ -32,7 +30,8 @@ class MuJoCoIPPEnv(GraphIPPEnv):
 
     ## Action Space
     ``Discrete(k)`` as in the graph tasks. ``action_masks()`` marks a neighbour affordable when
-    its reference flight time (length / speed plus the 1 s of velocity ramps) fits the budget.
+    the mission's clock (:meth:`MuJoCoMission.leg_durations`: the reference flight time, length /
+    speed plus the 1 s of velocity ramps, from where the drone is) fits the remaining budget.
 
     ## Observation Space
     Identical to :class:`~ipp_bench.envs.graph.GraphIPPEnv` (node features, positional
@@ -70,14 +69,7 @@ class MuJoCoIPPEnv(GraphIPPEnv):
     def _make_mission(self, truth: np.ndarray, rng: np.random.Generator, start_xyz: np.ndarray) -> MuJoCoMission:
         # drawn from a copy: the sensor-noise stream itself is not advanced
         texture_seed = int(copy.deepcopy(rng).integers(2**63 - 1))
-        return MuJoCoMission(self.config, truth, rng, start_xyz, self.world, texture_seed)
-
-    def action_masks(self) -> np.ndarray:
-        """(k,) bool: neighbours whose reference flight time fits the remaining budget."""
-        self._require_reset()
-        nbrs = self.roadmap.neighbours[self.current_node]
-        dist = np.linalg.norm(self.roadmap.positions[nbrs] - self.mission.position, axis=1)
-        return self.mission.leg_times(dist) <= self.mission.remaining_s + _TOL
+        return MuJoCoMission(self.config, truth, rng, start_xyz, self.world, texture_seed, sensor=self.sensor)
 
     def render(self):
         """(H, W, 3) uint8: chase view and downward camera above the truth / mean / std panels."""

@@ -11,9 +11,10 @@ Same world state, clock and metrics as the core mission, with three differences:
   (:meth:`WeedWorld.read_camera`), never the ground truth; then the sensor's binning and noise,
   and the same Kalman update of the same ``GPBelief`` (:meth:`Mission.assimilate`).
 
-A leg is refused, as in the core, when its nominal time (length / speed) exceeds the remaining
-budget, so planners that reason with nominal times never fail; when the flight itself runs out
-of budget, the leg ends where the drone is at that moment (its arrival read-out is taken only
+A leg is refused, as in the core, when its duration by the mission's clock
+(:meth:`MuJoCoMission.leg_durations`: the reference time, ramps included) exceeds the remaining
+budget; action masks and planners ask the same clock, so they never offer such a leg. When the
+flight itself runs out of budget (settling can take longer than the reference), the leg ends where the drone is at that moment (its arrival read-out is taken only
 if the reference trajectory had reached the waypoint).
 """
 
@@ -26,8 +27,8 @@ import numpy as np
 
 from ipp_bench.belief import GPBelief
 from ipp_bench.config import IPPConfig
-from ipp_bench.mission import Leg, Mission
-from ipp_bench.sensor import Observation
+from ipp_bench.mission import Leg, Mission, leg_lengths
+from ipp_bench.sensor import Observation, Sensor
 from ipp_bench.sim.controller import Leg as Reference
 from ipp_bench.sim.world import WeedWorld
 
@@ -45,33 +46,29 @@ class MuJoCoMission(Mission):
     """
 
     def __init__(self, config: IPPConfig, truth: np.ndarray, rng: np.random.Generator, start_xyz,
-                 world: WeedWorld, texture_seed: int, belief: GPBelief | None = None):
+                 world: WeedWorld, texture_seed: int, belief: GPBelief | None = None,
+                 sensor: Sensor | None = None):
         self.world = world
         self.flight = world.flight
         #: called with the mission after every physics step (the demo grabs video frames here)
         self.step_hooks: list[Callable[["MuJoCoMission"], None]] = []
         world.load_field(truth, texture_seed)
         world.flight.reset(np.asarray(start_xyz, dtype=np.float64))
-        super().__init__(config, truth, rng, start_xyz, belief)
+        super().__init__(config, truth, rng, start_xyz, belief, sensor)
 
     # -- clock ------------------------------------------------------------------------------------
-    def leg_time(self, xyz) -> float:
-        """Reference flight time [s] from here to ``xyz``: length / speed plus the velocity ramps."""
-        dist = float(np.linalg.norm(np.asarray(xyz, dtype=np.float64) - self.position))
-        return Reference.duration_for(dist, self.config.mission.speed, self.flight.ramp_s)
-
-    def leg_times(self, distances: np.ndarray) -> np.ndarray:
-        """Vectorised :meth:`leg_time` for leg lengths ``distances`` [m]."""
-        d = np.asarray(distances, dtype=np.float64)
-        v = np.minimum(self.config.mission.speed, d / self.flight.ramp_s)
-        return np.where(d > 0, d / np.where(v > 0, v, 1.0) + self.flight.ramp_s, 0.0)
+    def leg_durations(self, start_xyz, end_xyzs) -> np.ndarray:
+        """(K,) reference flight times [s] of the legs ``start_xyz -> end_xyzs``: length / speed
+        plus the velocity ramps (:meth:`Reference.duration_for`)."""
+        speed, ramp = self.config.mission.speed, self.flight.ramp_s
+        return np.array([Reference.duration_for(d, speed, ramp) for d in leg_lengths(start_xyz, end_xyzs)])
 
     # -- flight -----------------------------------------------------------------------------------
     def fly_to(self, xyz) -> Leg:
         """Flies to ``xyz`` [m] in MuJoCo, reading the camera along the way and on arrival.
 
         Raises:
-            BudgetExceededError: the leg's nominal time (length / speed) exceeds the remaining budget.
+            BudgetExceededError: the leg's reference time (:meth:`leg_durations`) exceeds the remaining budget.
             ValueError: ``xyz`` is off the map or equals the current position.
         """
         target, dist = self.check_leg(xyz)

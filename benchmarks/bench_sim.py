@@ -134,7 +134,8 @@ def bench_physics(steps: int) -> None:
 
 
 def bench_missions(planners: list[str], seeds: int) -> None:
-    from ipp_bench.sim.demo import fly_episode, make_sim_env
+    from ipp_bench.planners.episode import fly_episode
+    from ipp_bench.sim.demo import make_sim_env
 
     print("\n## Full missions on ipp_bench/MuJoCoWeed15-v0 (200 s budget)")
     print(f"{'planner':>10} {'seed':>4} | {'reset s':>7} | {'mission s':>9} | {'wall s':>6} | {'planner s':>9} | "
@@ -147,13 +148,13 @@ def bench_missions(planners: list[str], seeds: int) -> None:
             env.reset(seed=seed)  # texture and camera warm-up, timed apart
             reset_s = time.perf_counter() - t0
             log = fly_episode(env, planner, seed)
-            mission_s = log.metrics["time_s"]
+            mission_s = log.final["time_s"]
             wall = log.episode_wall_s
-            sim_wall = wall - log.decision_wall_s
+            sim_wall = wall - sum(log.decision_times_s)
             rows.append((planner, mission_s / wall, mission_s / sim_wall))
             print(f"{planner:>10} {seed:>4} | {reset_s:7.2f} | {mission_s:9.1f} | {wall:6.2f} | "
-                  f"{log.decision_wall_s:9.2f} | {mission_s / wall:10.1f}x | {mission_s / sim_wall:12.1f}x | "
-                  f"{log.decisions:>4} | {log.metrics['uncertainty_reduction_pct']:11.1f}")
+                  f"{sum(log.decision_times_s):9.2f} | {mission_s / wall:10.1f}x | {mission_s / sim_wall:12.1f}x | "
+                  f"{log.decisions:>4} | {log.final['uncertainty_reduction_pct']:11.1f}")
     env.close()
     for planner in planners:
         r = [x for x in rows if x[0] == planner]

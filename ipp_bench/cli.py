@@ -123,9 +123,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     result = run_episode(task, spec, args.seed, render_path=args.render, **env)
     if args.json:
-        out = {k: v for k, v in result.to_dict().items() if k != "decision_times_s"}
-        out.update(decision_time_mean_s=result.decision_time_mean_s, decision_time_max_s=result.decision_time_max_s)
-        print(json.dumps(out, indent=2))
+        print(json.dumps(result.to_dict(), indent=2))
         return 0
     print(f"{task}  planner {spec}  seed {args.seed}")
     print(f"{'time [s]':>9} {'ROI trace':>11} {'ROI RMSE':>9} {'uncertainty red.':>17} {'RMSE red.':>10}")

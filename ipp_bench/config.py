@@ -13,6 +13,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 FIELD_FAMILIES = ("bernoulli", "regions", "weed_patches")
+#: [s] the one tolerance of mission-time comparisons: a leg that overruns the remaining budget by
+#: less than this still fits, a record at most this after a report time counts "at or before" it
+TIME_TOL_S = 1e-9
 SAMPLING_MODES = ("grid", "uniform")
 
 
@@ -174,6 +177,11 @@ class MissionConfig:
         object.__setattr__(self, "report_times", tuple(float(t) for t in times))
         if not isinstance(self.measure_at_start, bool):
             _fail("mission", "measure_at_start", self.measure_at_start, "True or False")
+
+    @property
+    def report_times_in_budget(self) -> tuple[float, ...]:
+        """[s] the report times an episode reports its metrics at: those within the budget."""
+        return tuple(t for t in self.report_times if t <= self.budget_s + TIME_TOL_S)
 
 
 _SECTIONS = ("grid", "gp", "sensor", "graph", "mission")

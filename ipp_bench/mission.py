@@ -22,12 +22,11 @@ import numpy as np
 
 from . import metrics as M
 from .belief import GPBelief
-from .config import IPPConfig
+from .config import TIME_TOL_S, IPPConfig
 from .sensor import Observation, Sensor, stack
 
-#: [s] a leg that overruns the remaining budget by less than this still fits (float round-off);
-#: also the slack of "at or before" comparisons of mission times.
-TIME_TOL_S = 1e-9
+#: the metrics an episode reports at each report time (:meth:`Mission.metrics_at`)
+REPORT_KEYS = ("trace_roi", "rmse_roi", "uncertainty_reduction_pct", "rmse_reduction_pct")
 _LENGTH_TOL_M = 1e-9  # [m] a read-out this close to the arrival point is the arrival read-out
 
 
@@ -268,6 +267,15 @@ class Mission:
         out = asdict(rec)
         out["time_s"] = float(time_s)
         return out
+
+    def report(self) -> list[dict[str, float]]:
+        """The episode's report: at each report time within the budget, ``time_s`` and
+        :data:`REPORT_KEYS` as of that time (:meth:`metrics_at`)."""
+        rows = []
+        for t in self.config.mission.report_times_in_budget:
+            at = self.metrics_at(t)
+            rows.append({"time_s": float(t), **{k: float(at[k]) for k in REPORT_KEYS}})
+        return rows
 
     def belief_roi(self) -> np.ndarray:
         """The ROI a robot can compute: mean + beta sigma >= mu_th."""

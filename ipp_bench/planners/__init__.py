@@ -21,7 +21,7 @@ REGISTRY: dict[str, str] = {
     "greedy": "ipp_bench.planners.greedy:GreedyPlanner",
     "mcts": "ipp_bench.planners.mcts:MCTSPlanner",
     "cmaes": "ipp_bench.planners.cmaes:CMAESPlanner",
-    "attention": "ipp_bench.planners.attention:AttentionPlanner",
+    "attention": "ipp_bench.policies.planner:AttentionPlanner",
 }
 
 

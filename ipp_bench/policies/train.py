@@ -356,7 +356,8 @@ def net_action(net: AttentionNet, obs: dict, device: torch.device, deterministic
 
 def evaluate_net(net: AttentionNet, task: str, episodes: int, device: torch.device,
                  seed0: int = VAL_SEED0, overrides: dict[str, Any] | None = None) -> dict[str, float]:
-    """Deterministic (argmax) episodes of ``task`` on fixed seeds.
+    """Deterministic (argmax) episodes of ``task`` on fixed seeds, through the episode loop and the
+    planner class the leaderboard uses (:class:`~ipp_bench.policies.planner.AttentionPlanner`).
 
     Every second episode starts at the node nearest the default start of
     :class:`~ipp_bench.config.MissionConfig` (above cell (2, 2) at 14 m) instead of the task's own
@@ -364,33 +365,27 @@ def evaluate_net(net: AttentionNet, task: str, episodes: int, device: torch.devi
     two nodes from the standard start does not pass validation.
 
     Returns:
-        ``val/score`` (mean ROI uncertainty reduction over the report times within the budget),
-        ``val/unc_red_<t>s`` per report time, ``val/return``.
+        ``val/score`` (mean ROI uncertainty reduction over the report times within the budget, or
+        at the end of the budget if none is), ``val/unc_red_<t>s`` per report time, ``val/return``.
     """
     from ipp_bench.config import MissionConfig
     from ipp_bench.mission import cell_to_xyz
+    from ipp_bench.planners.episode import fly_episode
+    from ipp_bench.policies.planner import AttentionPlanner
 
-    env = make_env(task, **(overrides or {}))
-    base = env.unwrapped
-    times = base.config.mission.report_times
-    budget = base.config.mission.budget_s
-    times = [t for t in times if t <= budget + 1e-9] or [budget]
+    base = make_env(task, **(overrides or {})).unwrapped
+    times = base.config.mission.report_times_in_budget or (base.config.mission.budget_s,)
     start = MissionConfig().start
     std_node = base.roadmap.nearest_node(cell_to_xyz(base.config, *start)) if start is not None else None
+    planner = AttentionPlanner.from_net(net, device)
     red, ret = [], []
     was_training = net.training
     net.eval()
     for i in range(episodes):
         options = {"start_node": std_node} if (i % 2 and std_node is not None) else None
-        obs, _ = env.reset(seed=seed0 + i, options=options)
-        total, done = 0.0, False
-        while not done:
-            obs, r, term, trunc, _ = env.step(net_action(net, obs, device))
-            total += r
-            done = term or trunc
-        mission = env.unwrapped.mission
-        red.append([mission.metrics_at(t)["uncertainty_reduction_pct"] for t in times])
-        ret.append(total)
+        result = fly_episode(base, planner, seed0 + i, options=options)
+        red.append([base.mission.metrics_at(t)["uncertainty_reduction_pct"] for t in times])
+        ret.append(result.total_reward)
     net.train(was_training)
     red_arr = np.asarray(red)
     out = {"val/score": float(red_arr.mean()), "val/return": float(np.mean(ret))}

@@ -23,14 +23,11 @@ import argparse
 import math
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 DEFAULT_TASK = "ipp_bench/MuJoCoWeed15-v0"
-MAX_DECISIONS = 100_000
 
 
 def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -67,19 +64,6 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 
 # -- episodes ------------------------------------------------------------------------------------
-@dataclass
-class EpisodeLog:
-    """What a demo needs of a finished episode."""
-
-    planner: str
-    seed: int
-    history: list = field(default_factory=list)  # MetricRecord list of the mission
-    metrics: dict = field(default_factory=dict)
-    decisions: int = 0
-    decision_wall_s: float = 0.0
-    episode_wall_s: float = 0.0
-
-
 def make_sim_env(task: str, budget: float | None = None):
     """The unwrapped environment of ``task``; it must be a MuJoCo task (entry point in ``ipp_bench.sim``)."""
     import gymnasium as gym
@@ -94,45 +78,6 @@ def make_sim_env(task: str, budget: float | None = None):
         raise ValueError(f"task {task!r} is not simulated in MuJoCo: the demo needs one of {deploy}")
     overrides = {} if budget is None else {"budget_s": float(budget)}
     return gym.make(task, **overrides).unwrapped
-
-
-def fly_episode(env, planner_spec: str, seed: int,
-                on_reset: Callable[[object], None] | None = None) -> EpisodeLog:
-    """Runs one episode of ``planner_spec`` on ``env`` (same loop as the evaluation runner).
-
-    ``on_reset(env)`` is called after ``reset``, before the first decision (the video hooks in).
-    """
-    from ipp_bench.planners import RobotView, make_planner
-
-    agent = make_planner(planner_spec)
-    obs, _ = env.reset(seed=int(seed))
-    agent.reset(RobotView(env), int(seed))
-    if on_reset is not None:
-        on_reset(env)
-    log = EpisodeLog(planner_spec, int(seed))
-    t_start = time.perf_counter()
-    while log.decisions < MAX_DECISIONS:
-        t0 = time.perf_counter()
-        if agent.kind == "graph":
-            if not obs["action_mask"].any():
-                break
-            action = agent.act(obs)
-            log.decision_wall_s += time.perf_counter() - t0
-            log.decisions += 1
-            obs, _, terminated, _, _ = env.step(action)
-            if terminated:
-                break
-        else:
-            waypoint = agent.next_waypoint()
-            log.decision_wall_s += time.perf_counter() - t0
-            if waypoint is None:
-                break
-            log.decisions += 1
-            env.mission.fly_to(waypoint)
-    log.episode_wall_s = time.perf_counter() - t_start
-    log.history = list(env.mission.history)
-    log.metrics = env.mission.metrics()
-    return log
 
 
 # -- video ---------------------------------------------------------------------------------------
@@ -358,8 +303,11 @@ def expected_frames(t_end: float, fps: int, speedup: float, hold_s: float) -> in
 
 def record(task: str, planner: str, seed: int, out: str, budget: float | None = None, size=(1280, 720),
            fps: int = 10, speedup: float = 4.0, crf: int = 32, hold_s: float = 1.0,
-           progress: bool = True) -> tuple[EpisodeLog, int]:
-    """Flies ``planner`` on ``task`` and writes the video; returns the episode log and frame count."""
+           progress: bool = True):
+    """Flies ``planner`` on ``task`` and writes the video; returns the
+    :class:`~ipp_bench.planners.episode.EpisodeResult` and the frame count."""
+    from ipp_bench.planners.episode import fly_episode
+
     env = make_sim_env(task, budget)
     video: dict[str, DemoVideo] = {}
     bar = None
@@ -376,7 +324,7 @@ def record(task: str, planner: str, seed: int, out: str, budget: float | None = 
         video["v"] = v
 
     try:
-        log = fly_episode(env, planner, seed, on_reset)
+        log = fly_episode(env, planner, seed, on_reset=on_reset)
         n = video["v"].close(env.mission.time_s)
     except BaseException:
         if "v" in video:
@@ -389,7 +337,7 @@ def record(task: str, planner: str, seed: int, out: str, budget: float | None = 
     return log, n
 
 
-def compare_plot(logs: list[EpisodeLog], budget: float, report_times, path: str, title: str) -> None:
+def compare_plot(logs: list, budget: float, report_times, path: str, title: str) -> None:
     """The paper's comparison: trace(P) over the ROI against mission time, one line per planner."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -398,7 +346,7 @@ def compare_plot(logs: list[EpisodeLog], budget: float, report_times, path: str,
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
     for log in logs:
-        t = np.array([r.time_s for r in log.history] + [log.metrics["time_s"]])
+        t = np.array([r.time_s for r in log.history] + [log.final["time_s"]])
         tr = np.array([r.trace_roi for r in log.history] + [log.history[-1].trace_roi])
         reds = []
         for rt in report_times:
@@ -435,7 +383,7 @@ def run_demo(args: argparse.Namespace) -> int:
     except (ValueError, ImportError, RuntimeError) as err:
         print(f"ipp-bench demo: error: {err}", file=sys.stderr)
         return 2
-    m = log.metrics
+    m = log.final
     print(f"{out}: {frames} frames, {size[0]}x{size[1]} @ {args.fps} fps; {args.planner} flew "
           f"{m['time_s']:.2f} s ({m['distance_m']:.0f} m, {log.decisions} decisions): uncertainty reduction "
           f"{m['uncertainty_reduction_pct']:.1f} %, RMSE reduction {m['rmse_reduction_pct']:.1f} %")
@@ -443,6 +391,8 @@ def run_demo(args: argparse.Namespace) -> int:
         try:
             env = make_sim_env(args.task, args.budget)
             try:
+                from ipp_bench.planners.episode import fly_episode
+
                 other = fly_episode(env, args.compare, args.seed)
             finally:
                 env.close()
@@ -453,7 +403,7 @@ def run_demo(args: argparse.Namespace) -> int:
         except (ValueError, ImportError, RuntimeError) as err:
             print(f"ipp-bench demo: error: {err}", file=sys.stderr)
             return 2
-        o = other.metrics
+        o = other.final
         print(f"{png}: {args.compare} flew {o['time_s']:.1f} s: uncertainty reduction "
               f"{o['uncertainty_reduction_pct']:.1f} %, RMSE reduction {o['rmse_reduction_pct']:.1f} %")
     return 0

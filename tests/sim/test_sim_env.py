@@ -9,7 +9,7 @@ pytest.importorskip("mujoco")
 
 import ipp_bench.envs as envs  # noqa: E402
 from ipp_bench.mission import BudgetExceededError  # noqa: E402
-from ipp_bench.sim.demo import fly_episode  # noqa: E402
+from ipp_bench.planners.episode import fly_episode  # noqa: E402
 from ipp_bench.sim.env import MuJoCoIPPEnv  # noqa: E402
 from ipp_bench.sim.mission import MuJoCoMission  # noqa: E402
 
@@ -116,7 +116,7 @@ def test_budget_rules(env):
 def test_graph_and_continuous_planners_run_unchanged(env, planner):
     log = fly_episode(env, planner, seed=2)
     assert log.decisions > 0
-    assert 0.0 < log.metrics["uncertainty_reduction_pct"] <= 100.0
+    assert 0.0 < log.final["uncertainty_reduction_pct"] <= 100.0
     assert env.mission.time_s <= env.mission.budget_s + 1e-9
 
 
@@ -137,6 +137,6 @@ def test_full_200s_mission():
     assert 195.0 <= m.time_s <= 200.0
     for t in (50.0, 100.0, 150.0, 200.0):
         assert np.isfinite(m.metrics_at(t)["trace_roi"])
-    assert log.metrics["uncertainty_reduction_pct"] > 0
+    assert log.final["uncertainty_reduction_pct"] > 0
     assert m.n_measurements > 100
     e.close()

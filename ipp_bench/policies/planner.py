@@ -3,7 +3,10 @@
 Loads the checkpoint shipped in the package (``ipp_bench/policies/checkpoints/attention_grid15.pt``)
 or ``checkpoint=PATH`` (an ``export.pt`` of an ``ipp-bench train`` run), and picks the neighbour
 with the highest probability (``sample=true``: draws from the policy instead, seeded per episode).
-Needs torch (``pip install "ipp-bench[train]"``); the planner registry imports it lazily.
+Needs torch (``pip install "ipp-bench[train]"``); the planner registry imports it lazily. It
+lives with the policy code (it is the policy's view as a planner), and the training code validates
+a network in training through it (:meth:`AttentionPlanner.from_net`), so that validation and the
+leaderboard decide the same way.
 
 A decision is one forward pass of a small network (about 1 ms at 450 nodes): torch's intra-op
 threads only add hand-over cost there, and they oversubscribe the CPU when the leaderboard runs
@@ -18,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import GraphPlanner, RobotView
+from ..planners.base import GraphPlanner, RobotView
 
 
 @dataclass(frozen=True)
@@ -49,7 +52,9 @@ class AttentionPlanner(GraphPlanner):
     kind = "graph"
     Config = AttentionConfig
 
-    def __init__(self, config: AttentionConfig | None = None, **kwargs: Any):
+    def __init__(self, config: AttentionConfig | None = None, net=None, **kwargs: Any):
+        """Args: ``config`` (or its fields as keywords); ``net``: decide with this network (e.g.
+        one in training, see :meth:`from_net`) instead of loading ``config.checkpoint``."""
         if config is None:
             config = AttentionConfig(**kwargs)
         elif kwargs:
@@ -60,28 +65,34 @@ class AttentionPlanner(GraphPlanner):
         except ImportError:
             raise ImportError(
                 'the attention planner needs torch: pip install "ipp-bench[train]"') from None
-        from ..policies.checkpoint import load_checkpoint
+        from .checkpoint import load_checkpoint
 
         self._torch = torch
         if config.threads:
             torch.set_num_threads(config.threads)
         self.device = torch.device(config.device)
-        self.net, self.meta = load_checkpoint(config.checkpoint or None, device=self.device)
+        if net is None:
+            self.net, self.meta = load_checkpoint(config.checkpoint or None, device=self.device)
+            self._source = config.checkpoint or "(shipped)"
+        else:
+            self.net, self.meta, self._source = net, {}, "(network in memory)"
         self._checked_shape: tuple | None = None
 
-    def reset(self, view: RobotView, seed: int) -> None:
-        super().reset(view, seed)
+    @classmethod
+    def from_net(cls, net, device="cpu", sample: bool = False) -> AttentionPlanner:
+        """The planner deciding with ``net`` on ``device``, torch's threads left alone."""
+        return cls(AttentionConfig(sample=sample, device=str(device), threads=0), net=net)
 
     def _check(self, obs: dict[str, np.ndarray]) -> None:
         shape = (obs["node_features"].shape[-1], obs["pos_encoding"].shape[-1])
         if shape == self._checked_shape:
             return
-        from ..policies.checkpoint import CheckpointError
+        from .checkpoint import CheckpointError
 
         cfg = self.net.cfg
         if shape != (cfg.node_dim, cfg.pe_dim):
             raise CheckpointError(
-                f"attention checkpoint {self.config.checkpoint or '(shipped)'} expects {cfg.node_dim} node features "
+                f"attention checkpoint {self._source} expects {cfg.node_dim} node features "
                 f"and pe_dim={cfg.pe_dim}; this environment gives {shape[0]} and pe_dim={shape[1]}")
         self._checked_shape = shape
 

@@ -1,0 +1,147 @@
+"""The one episode loop: a planner flies one episode of an environment.
+
+Every episode of the suite goes through :func:`fly_episode`: the leaderboard's
+(:func:`ipp_bench.eval.runner.run_episode`), the MuJoCo demo's and the training code's
+validation. What they add rides on two hooks: ``on_reset(env)`` after the reset (the demo
+attaches its video there) and ``on_decision(decision)`` after every decision (per-decision
+logging). The result is one :class:`EpisodeResult`.
+
+A roadmap planner (``kind = "graph"``) acts on the env's observation and the env steps; a
+continuous planner (``kind = "continuous"``) gives a waypoint that the mission flies. The episode
+ends when no neighbour is affordable (graph) or the planner returns None (continuous).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import make_planner
+from .base import RobotView
+
+#: decisions after which an episode that has not ended is a planner bug
+MAX_DECISIONS = 100_000
+
+
+@dataclass
+class Decision:
+    """One decision, as ``on_decision`` sees it.
+
+    Attributes:
+        index: 0-based decision number.
+        obs: the observation the decision was made on (graph planners; None for continuous).
+        action: the neighbour index (graph) or the waypoint [m] (continuous).
+        reward: the env's reward of the step (graph; 0.0 for continuous).
+        wall_s: wall time of the decision [s].
+    """
+
+    index: int
+    obs: dict[str, np.ndarray] | None
+    action: Any
+    reward: float
+    wall_s: float
+
+
+@dataclass
+class EpisodeResult:
+    """One episode of one planner: its report, its clock and the planner's decision times.
+
+    Attributes:
+        task: task id of the env (None for an env made without one).
+        planner: planner spec (or the planner's name when an object was passed).
+        seed: episode seed.
+        report: one dict per report time within the budget: ``time_s`` and the report metrics
+            (:meth:`ipp_bench.mission.Mission.report`).
+        decisions: decisions made.
+        decision_times_s: wall time of every decision [s].
+        episode_wall_s: wall time of the whole episode [s].
+        final: the mission's metrics at the end (:meth:`~ipp_bench.mission.Mission.metrics`).
+        total_reward: sum of the env's rewards (graph planners; 0.0 for continuous).
+        history: the mission's time-stamped metric records.
+    """
+
+    task: str | None
+    planner: str
+    seed: int
+    report: list[dict[str, float]]
+    decisions: int
+    decision_times_s: list[float] = field(repr=False)
+    episode_wall_s: float
+    final: dict[str, float]
+    total_reward: float = 0.0
+    history: list = field(default_factory=list, repr=False)
+
+    @property
+    def decision_time_mean_s(self) -> float:
+        return float(np.mean(self.decision_times_s)) if self.decision_times_s else 0.0
+
+    @property
+    def decision_time_max_s(self) -> float:
+        return float(np.max(self.decision_times_s)) if self.decision_times_s else 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: the decision times as mean and max, no history."""
+        out = {k: v for k, v in asdict(self).items() if k not in ("decision_times_s", "history")}
+        out.update(decision_time_mean_s=self.decision_time_mean_s, decision_time_max_s=self.decision_time_max_s)
+        return out
+
+
+def fly_episode(env, planner, seed: int, *, options: dict | None = None,
+                on_reset: Callable[[Any], None] | None = None,
+                on_decision: Callable[[Decision], None] | None = None) -> EpisodeResult:
+    """Fly one episode of ``planner`` on ``env``.
+
+    Args:
+        env: an unwrapped :class:`~ipp_bench.envs.graph.GraphIPPEnv` (or subclass).
+        planner: a planner spec (``"mcts:simulations=50"``) or a planner object.
+        seed: episode seed: field, start and sensor noise (every planner meets the same episode),
+            and the planner's own generator.
+        options: ``env.reset`` options (e.g. ``{"start_node": 3}``).
+        on_reset: called with the env after the reset, before the first decision.
+        on_decision: called with every :class:`Decision`, after it was carried out.
+
+    Raises:
+        RuntimeError: the planner made :data:`MAX_DECISIONS` decisions without ending the episode.
+    """
+    agent = make_planner(planner) if isinstance(planner, str) else planner
+    label = planner if isinstance(planner, str) else agent.name
+    obs, _ = env.reset(seed=int(seed), options=options)
+    agent.reset(RobotView(env), int(seed))
+    if on_reset is not None:
+        on_reset(env)
+    times: list[float] = []
+    total = 0.0
+    t_start = time.perf_counter()
+    if agent.kind == "graph":
+        while obs["action_mask"].any() and len(times) < MAX_DECISIONS:
+            t0 = time.perf_counter()
+            action = agent.act(obs)
+            times.append(time.perf_counter() - t0)
+            before = obs
+            obs, reward, terminated, truncated, _ = env.step(action)
+            total += reward
+            if on_decision is not None:
+                on_decision(Decision(len(times) - 1, before, action, float(reward), times[-1]))
+            if terminated or truncated:
+                break
+    else:
+        while len(times) < MAX_DECISIONS:
+            t0 = time.perf_counter()
+            waypoint = agent.next_waypoint()
+            wall = time.perf_counter() - t0
+            if waypoint is None:
+                break
+            times.append(wall)
+            env.mission.fly_to(waypoint)
+            if on_decision is not None:
+                on_decision(Decision(len(times) - 1, None, waypoint, 0.0, wall))
+    if len(times) >= MAX_DECISIONS:
+        raise RuntimeError(f"planner {label!r} made {MAX_DECISIONS} decisions without ending the episode")
+    wall = time.perf_counter() - t_start
+    mission = env.mission
+    return EpisodeResult(getattr(env, "task_id", None), label, int(seed), mission.report(), len(times), times,
+                         wall, mission.metrics(), float(total), list(mission.history))

@@ -1,4 +1,4 @@
-"""BLAS threading for the many small matrix products of the belief updates.
+"""CPUs and BLAS threading for the many small matrix products of the belief updates.
 
 A Kalman update on a 15 x 15 map multiplies matrices of a few hundred rows: OpenBLAS threads
 only add hand-over cost there, and on a busy 2-core machine they made an env step 10-30x slower
@@ -12,6 +12,14 @@ from __future__ import annotations
 import os
 
 _applied = False
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on (the affinity mask where the OS has one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
 
 
 def limit_blas_threads() -> None:

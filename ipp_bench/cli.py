@@ -11,7 +11,9 @@ Subcommands::
 A subcommand's module is imported only when that subcommand runs, so ``ipp-bench leaderboard``
 never imports torch or mujoco for itself (a planner that needs torch imports it when it is built).
 Bad arguments (unknown task or planner, a bad planner setting, results of other arguments in
-``--out``) end with the library's message and exit status 2, without a traceback.
+``--out``, an unwritable path, no Ray cluster) end with the library's message and exit status 2,
+without a traceback, before any episode runs. Ctrl-C (and SIGTERM during a leaderboard) ends with
+one line and exit status 130; a leaderboard keeps its finished episodes and resumes on a rerun.
 """
 
 from __future__ import annotations
@@ -20,12 +22,14 @@ import argparse
 import importlib
 import json
 import shlex
+import signal
 import sys
 from collections.abc import Sequence
 
 from . import __version__
 
 EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
 
 # subcommand -> (module, add_arguments, run, extra)
 _DELEGATED = {
@@ -69,7 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
                                     "Resumable: rerun the same command to complete an interrupted run.")
     lb.add_argument("--tasks", nargs="+", metavar="TASK", help="task ids (default: all tagged 'benchmark')")
     lb.add_argument("--planners", nargs="+", metavar="SPEC",
-                    help="planner specs such as greedy or mcts:simulations=50 (default: every registered planner that can be built here; the others are named)")
+                    help="planner specs such as greedy or mcts:simulations=50, separated by spaces or commas "
+                         "(default: every registered planner that can be built here; the others are named)")
     lb.add_argument("--episodes", type=int, help="episodes per task and planner (default 20; --quick: 3)")
     lb.add_argument("--seed", type=int, default=0, help="base seed the episode seeds derive from (default 0)")
     lb.add_argument("--workers", type=int, help="parallel workers (default: the CPUs available)")
@@ -81,6 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="few episodes and cheaper look-ahead settings: minutes on 2 cores")
     lb.add_argument("--env", metavar="KEY=VALUE", action="append", default=[],
                     help="override a config field of every task, e.g. --env budget_s=100 (repeatable)")
+    lb.add_argument("--reference", default="greedy", metavar="SPEC",
+                    help="planner the report compares every other one with, episode by episode (default greedy)")
     progress = lb.add_mutually_exclusive_group()
     progress.add_argument("--progress", dest="progress", action="store_true", default=None,
                           help="always show a progress bar")
@@ -108,20 +115,33 @@ def cmd_tasks(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from .eval.leaderboard import canonical_spec, parse_env_overrides, report_times, resolve_task
+    from .data import check_output_file
+    from .envs import parse_overrides, resolve_task, task_config, task_spec
+    from .eval.plan import canonical_spec
     from .planners import make_planner
 
     try:
         task = resolve_task(args.task)
-        env = parse_env_overrides(args.env)
-        report_times(task, env)  # validates the overrides
+        task_spec(task)  # names the valid tasks
+        env = parse_overrides(args.env)
+        if not task_config(task, env).mission.report_times_in_budget:  # validates the overrides too
+            mission = task_config(task, env).mission
+            raise ValueError(f"no report time {mission.report_times} lies within the budget of {mission.budget_s} s: "
+                             "lower report_times or raise budget_s")
+        if args.seed < 0:
+            raise ValueError(f"--seed {args.seed} is invalid: expected an integer >= 0")
+        if args.render:
+            check_output_file(args.render, "--render", suffix=".png")
         spec = canonical_spec(args.planner)
         make_planner(spec)  # a planner that cannot be built here fails now, with its message
     except (ValueError, ImportError) as err:
         return _error(str(err))
     from .eval.runner import run_episode
 
-    result = run_episode(task, spec, args.seed, render_path=args.render, **env)
+    try:
+        result = run_episode(task, spec, args.seed, render_path=args.render, **env)
+    except ValueError as err:  # e.g. a budget that pays for no first move
+        return _error(str(err))
     if args.json:
         print(json.dumps(result.to_dict(), indent=2))
         return 0
@@ -137,15 +157,23 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sigterm_as_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
-    from .eval.executors import check_executor_args, default_backend
-    from .eval.leaderboard import ResultsMismatchError, describe_quick, make_plan, parse_env_overrides, run_leaderboard
+    from .data import check_output_dir
+    from .envs import parse_overrides
+    from .eval.executors import ExecutorError, check_executor_args, default_backend
+    from .eval.leaderboard import Interrupted, ResultsMismatchError, describe_quick, make_plan, run_leaderboard
+    from .planners import split_specs
 
     if args.quick:
         print(describe_quick(), flush=True)
     try:
-        plan = make_plan(args.tasks, args.planners, args.episodes, args.seed, args.quick,
-                         parse_env_overrides(args.env), log=lambda m: print(m, flush=True))
+        check_output_dir(args.out)
+        plan = make_plan(args.tasks, split_specs(args.planners) if args.planners else None, args.episodes,
+                         args.seed, args.quick, parse_overrides(args.env), log=lambda m: print(m, flush=True))
         backend = args.backend or ("ray" if args.address else default_backend(args.workers))
         check_executor_args(backend, args.workers, args.address)  # e.g. the ray extra, before anything runs
     except (ValueError, ImportError) as err:
@@ -154,13 +182,18 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
           f"episodes: {plan.episodes} per task and planner, seed {plan.seed}"
           + (f", env overrides {plan.env_overrides}" if plan.env_overrides else ""), flush=True)
     command = "ipp-bench " + " ".join(shlex.quote(a) for a in argv)
+    previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)  # SIGTERM stops like Ctrl-C
     try:
         summary = run_leaderboard(plan, args.out, backend=backend, workers=args.workers, address=args.address,
-                                  progress=args.progress, command=command, log=lambda m: print(m, flush=True))
-    except ResultsMismatchError as err:
+                                  progress=args.progress, command=command, reference=args.reference,
+                                  log=lambda m: print(m, flush=True))
+    except Interrupted as err:
+        print(f"ipp-bench: {err}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (ResultsMismatchError, ExecutorError, ImportError, ValueError) as err:
         return _error(str(err))
-    except ImportError as err:  # the ray extra
-        return _error(str(err))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     print(f"done in {summary.wall_s:.1f} s ({summary.ran} episodes run, {summary.skipped} resumed); wrote:")
     for path in summary.files:
         print(f"  {path}")
@@ -181,7 +214,15 @@ def _run_delegated(name: str, argv: Sequence[str]) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``ipp-bench`` console script; returns the exit status."""
+    """Entry point of the ``ipp-bench`` console script; returns the exit status (130 after Ctrl-C)."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print("ipp-bench: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in _DELEGATED:  # their parsers live in their (heavy) modules
         return _run_delegated(argv[0], argv[1:])

@@ -2,13 +2,16 @@
 
 Every field carries its unit in a comment. A bad value raises ``ValueError`` naming the field,
 the value and the valid range, so a wrong ``gym.make(..., **overrides)`` fails at once and says
-how to fix it. ``IPPConfig.replace(**flat)`` sets fields by name across the sections.
+how to fix it. Numbers of any numeric type are accepted (``numpy.int64(20)`` for an integer
+field, an int for a float field) and stored as Python numbers; strings and booleans are refused
+where a number is expected. ``IPPConfig.replace(**flat)`` sets fields by name across the sections.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,6 +20,9 @@ FIELD_FAMILIES = ("bernoulli", "regions", "weed_patches")
 #: less than this still fits, a record at most this after a report time counts "at or before" it
 TIME_TOL_S = 1e-9
 SAMPLING_MODES = ("grid", "uniform")
+#: every field family has at least one cell at or above this value (``ipp_bench.fields``), so an
+#: evaluation ROI ``truth >= mu_th`` with ``mu_th`` up to it is never empty
+FIELD_GUARANTEED_MAX = 0.5
 
 
 def _fail(section: str, name: str, value: Any, valid: str) -> None:
@@ -24,13 +30,20 @@ def _fail(section: str, name: str, value: Any, valid: str) -> None:
 
 
 def _finite(section: str, name: str, value: Any) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        _fail(section, name, value, "a finite number")
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        _fail(section, name, value, "a finite number (not a string or a bool)")
+    v = float(value)
     if not math.isfinite(v):
         _fail(section, name, value, "a finite number")
     return v
+
+
+def _plain(obj: Any, *names: str) -> None:
+    """Store numpy numbers of fields ``names`` of frozen ``obj`` as Python numbers (after checks)."""
+    for name in names:
+        value = getattr(obj, name)
+        if isinstance(value, numbers.Number) and type(value) not in (int, float):
+            object.__setattr__(obj, name, int(value) if isinstance(value, numbers.Integral) else float(value))
 
 
 def _positive(section: str, name: str, value: Any) -> None:
@@ -39,7 +52,7 @@ def _positive(section: str, name: str, value: Any) -> None:
 
 
 def _integer(section: str, name: str, value: Any, low: int, high: int | None = None) -> None:
-    ok = isinstance(value, (int,)) and not isinstance(value, bool)
+    ok = isinstance(value, numbers.Integral) and not isinstance(value, bool)
     if not ok or value < low or (high is not None and value > high):
         rng = f">= {low}" if high is None else f"in [{low}, {high}]"
         _fail(section, name, value, f"an integer {rng}")
@@ -57,6 +70,7 @@ class GridConfig:
         _integer("grid", "rows", self.rows, 2)
         _integer("grid", "cols", self.cols, 2)
         _positive("grid", "resolution", self.resolution)
+        _plain(self, "rows", "cols", "resolution")
 
     @property
     def n_cells(self) -> int:
@@ -80,6 +94,7 @@ class GPConfig:
         _positive("gp", "length_scale", self.length_scale)
         _positive("gp", "signal_variance", self.signal_variance)
         _finite("gp", "prior_mean", self.prior_mean)
+        _plain(self, "length_scale", "signal_variance", "prior_mean")
 
 
 @dataclass(frozen=True)
@@ -100,6 +115,7 @@ class SensorConfig:
         _positive("sensor", "noise_b", self.noise_b)
         _positive("sensor", "binning_altitude", self.binning_altitude)
         _integer("sensor", "binning", self.binning, 1)
+        _plain(self, "fov_deg", "noise_a", "noise_b", "binning_altitude", "binning")
 
 
 @dataclass(frozen=True)
@@ -131,6 +147,7 @@ class GraphConfig:
         _integer("graph", "n_samples", self.n_samples, 2 * len(alts))
         _integer("graph", "pe_dim", self.pe_dim, 1)
         _integer("graph", "roadmap_seed", self.roadmap_seed, 0)
+        _plain(self, "k", "n_samples", "pe_dim", "roadmap_seed")
 
 
 @dataclass(frozen=True)
@@ -163,7 +180,10 @@ class MissionConfig:
             object.__setattr__(self, "start", tuple(float(v) for v in self.start))
         if self.field not in FIELD_FAMILIES:
             _fail("mission", "field", self.field, f"one of {FIELD_FAMILIES}")
-        _finite("mission", "mu_th", self.mu_th)
+        if not 0.0 <= _finite("mission", "mu_th", self.mu_th) <= FIELD_GUARANTEED_MAX:
+            _fail("mission", "mu_th", self.mu_th,
+                  f"a number in [0, {FIELD_GUARANTEED_MAX}] (every field family has a cell at or above "
+                  f"{FIELD_GUARANTEED_MAX}, so the evaluation ROI truth >= mu_th is never empty)")
         if _finite("mission", "beta", self.beta) < 0:
             _fail("mission", "beta", self.beta, "a finite number >= 0")
         times = self.report_times
@@ -177,6 +197,7 @@ class MissionConfig:
         object.__setattr__(self, "report_times", tuple(float(t) for t in times))
         if not isinstance(self.measure_at_start, bool):
             _fail("mission", "measure_at_start", self.measure_at_start, "True or False")
+        _plain(self, "budget_s", "speed", "measurement_spacing", "mu_th", "beta")
 
     @property
     def report_times_in_budget(self) -> tuple[float, ...]:

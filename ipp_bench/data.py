@@ -1,11 +1,14 @@
-"""Where the data folders (``tasks/``, ``assets/``, ``baselines/``) are.
+"""Where files are: the data folders (``tasks/``, ``assets/``, ``baselines/``) and output paths.
 
-In a wheel they travel inside the package as ``ipp_bench/_data/<name>``; in a source checkout or an
-editable install they are the top-level folders of the repository.
+In a wheel the data folders travel inside the package as ``ipp_bench/_data/<name>``; in a source
+checkout or an editable install they are the top-level folders of the repository. Output paths
+(``--out``, ``--render``, demo videos) are checked with :func:`check_output_dir` and
+:func:`check_output_file` before any episode runs, so a typo never costs a finished run.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 _PACKAGE = Path(__file__).resolve().parent
@@ -19,3 +22,35 @@ def data_dir(name: str) -> Path:
     raise FileNotFoundError(
         f"ipp_bench data folder {name!r} not found in {_PACKAGE / '_data'} nor {_PACKAGE.parent}: "
         "reinstall the package (pip install ipp-bench) or run from a full checkout")
+
+
+def check_output_dir(folder: str | Path, what: str = "--out") -> Path:
+    """``folder`` as a Path, if it exists as a writable folder or can be created (nothing is created).
+
+    Raises:
+        ValueError: a file is in the way, or the first existing folder on the way is not writable.
+    """
+    folder = Path(folder)
+    existing = next((p for p in (folder, *folder.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ValueError(f"{what} {folder} cannot be written: {existing} is a file, not a folder")
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"{what} {folder} cannot be written: {existing} is not writable")
+    return folder
+
+
+def check_output_file(path: str | Path, what: str, suffix: str | None = None) -> Path:
+    """``path`` as a Path, if a file can be written there (suffix checked; nothing is created).
+
+    Raises:
+        ValueError: wrong suffix, ``path`` is a folder, or its folder cannot be written.
+    """
+    path = Path(path)
+    if suffix is not None and path.suffix.lower() != suffix:
+        raise ValueError(f"{what} {str(path)!r} is invalid: expected a {suffix} file")
+    if path.is_dir():
+        raise ValueError(f"{what} {path} is a folder: expected a file path")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise ValueError(f"{what} {path} cannot be written: the file is read-only")
+    check_output_dir(path.parent, what=f"{what} {path}: the folder")
+    return path

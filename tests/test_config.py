@@ -20,6 +20,12 @@ BAD = [
     (MissionConfig, "start", (1, 2)), (MissionConfig, "start", (1, 2, 0.0)), (MissionConfig, "field", "gas"),
     (MissionConfig, "mu_th", float("nan")), (MissionConfig, "beta", -1.0), (MissionConfig, "report_times", ()),
     (MissionConfig, "report_times", (100.0, 50.0)), (MissionConfig, "measure_at_start", 1),
+    # strings and booleans are not numbers, whatever they spell
+    (GridConfig, "rows", "20"), (GridConfig, "resolution", "2.5"), (GridConfig, "rows", True),
+    (MissionConfig, "budget_s", "100"), (MissionConfig, "budget_s", True), (GraphConfig, "altitudes", ("8", 14.0)),
+    (MissionConfig, "report_times", ("50",)), (SensorConfig, "noise_a", False),
+    # outside the fields' range, the evaluation ROI could be empty (NaN metrics)
+    (MissionConfig, "mu_th", 0.9), (MissionConfig, "mu_th", -0.1),
 ]
 
 
@@ -64,3 +70,13 @@ def test_round_trip_dict():
     assert IPPConfig.from_dict(c.to_dict()) == c
     with pytest.raises(ValueError, match="unknown config sections"):
         IPPConfig.from_dict({"grids": {}})
+
+
+def test_numbers_of_any_numeric_type_are_accepted_and_stored_as_python_numbers():
+    np = pytest.importorskip("numpy")
+    c = IPPConfig().replace(rows=np.int64(20), resolution=np.float32(2.5), budget_s=np.int32(100), k=np.int64(10))
+    assert c.grid.rows == 20 and type(c.grid.rows) is int
+    assert c.grid.resolution == 2.5 and type(c.grid.resolution) is float
+    assert c.mission.budget_s == 100 and type(c.mission.budget_s) is int
+    assert type(c.graph.k) is int
+    assert IPPConfig().replace(budget_s=100).to_dict() == IPPConfig().replace(budget_s=np.int64(100)).to_dict()

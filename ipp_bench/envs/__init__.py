@@ -1,8 +1,20 @@
 """Gymnasium environments and the registered benchmark tasks (``gym.make("ipp_bench/...")``)."""
 
 from .graph import GraphIPPEnv
-from .registry import TASKS, TaskSpec, register_all, tagged, task_spec
+from .registry import (
+    NAMESPACE,
+    TASKS,
+    TaskSpec,
+    parse_overrides,
+    register_all,
+    resolve_task,
+    short_task_id,
+    tagged,
+    task_config,
+    task_spec,
+)
 
 register_all()
 
-__all__ = ["GraphIPPEnv", "TASKS", "TaskSpec", "register_all", "tagged", "task_spec"]
+__all__ = ["NAMESPACE", "GraphIPPEnv", "TASKS", "TaskSpec", "parse_overrides", "register_all", "resolve_task",
+           "short_task_id", "tagged", "task_config", "task_spec"]

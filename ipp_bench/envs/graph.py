@@ -49,12 +49,14 @@ class GraphIPPEnv(gym.Env):
     the leg (paper eq. 9). ``info["reward_info_gain"]`` holds it.
 
     ## Episode End
-    Terminated when no neighbour of the current node is affordable. Never truncated.
+    Terminated when no neighbour of the current node is affordable. Never truncated. ``step``
+    after the end raises ``RuntimeError`` ("the episode is over: call reset()"); ``reset`` raises
+    ``ValueError`` naming ``budget_s`` when the budget pays for no move from the start.
 
     ## Arguments
     ``gym.make(task_id, **overrides)``: any field of :class:`ipp_bench.config.IPPConfig` by name
     (``budget_s=200``, ``rows=20``, ``field="regions"``, ...), or ``config=IPPConfig(...)``;
-    ``render_mode="rgb_array"``. Constructing an environment limits numpy/scipy BLAS to one
+    ``render_mode="rgb_array"`` (the only mode; another one is refused, naming it). Constructing an environment limits numpy/scipy BLAS to one
     thread per process (``IPP_BENCH_BLAS_THREADS`` overrides; see ``ipp_bench._threads``).
 
     ## Version History
@@ -135,6 +137,12 @@ class GraphIPPEnv(gym.Env):
             node = self.roadmap.nearest_node(cell_to_xyz(self.config, *start))
         self.current_node = node
         self.mission = self._make_mission(truth, np.random.default_rng(noise_seed), self.roadmap.positions[node])
+        if not self.action_masks().any():
+            nbrs = self.roadmap.positions[self.roadmap.neighbours[node]]
+            cheapest = float(self.mission.leg_durations(self.mission.position, nbrs).min())
+            raise ValueError(
+                f"budget_s = {self.config.mission.budget_s} is too small: no move from the start node {node} fits "
+                f"(the cheapest takes {cheapest:.2f} s); raise budget_s")
         return self._observation(), self._info(0.0, 0.0)
 
     def action_masks(self) -> np.ndarray:
@@ -145,6 +153,8 @@ class GraphIPPEnv(gym.Env):
     def step(self, action):
         self._require_reset()
         mask = self.action_masks()
+        if not mask.any():
+            raise RuntimeError("the episode is over (no neighbour is affordable): call reset()")
         a = self._check_action(action, mask)
         mission = self.mission
         roi = mission.belief_roi()

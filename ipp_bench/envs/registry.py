@@ -7,10 +7,14 @@ set the leaderboard runs (dm_control's habit of deriving benchmark sets from tag
 
 from __future__ import annotations
 
+import json
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import gymnasium as gym
+from gymnasium.envs.registration import load_env_creator
 
 from ..config import IPPConfig
 from ..data import data_dir
@@ -64,13 +68,28 @@ def _discover() -> dict[str, TaskSpec]:
 TASKS: dict[str, TaskSpec] = _discover()
 
 
+def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
+    """gym.make's entry point of every task: builds ``env_class`` ("module:Class").
+
+    It refuses a render mode the class does not have, naming the ones it has. (Given the class
+    itself, gymnasium would wrap an ``rgb_array`` env asked for ``"human"`` in its HumanRendering
+    window, which asks for pygame instead.)
+    """
+    cls = load_env_creator(env_class)
+    modes = list(cls.metadata.get("render_modes", []))
+    if render_mode is not None and render_mode not in modes:
+        raise ValueError(f"render_mode={render_mode!r} is invalid: valid are {modes} or None "
+                         "(there is no window: render 'rgb_array' frames and show or save them)")
+    return cls(render_mode=render_mode, **kwargs)
+
+
 def register_all() -> None:
     """Register every task with gymnasium (idempotent)."""
     for spec in TASKS.values():
         if spec.id in gym.registry:
             continue
-        gym.register(id=spec.id, entry_point=spec.entry_point,
-                     kwargs={"config": spec.config, "task_id": spec.id},
+        gym.register(id=spec.id, entry_point=f"{__name__}:make_task_env",
+                     kwargs={"env_class": spec.entry_point, "config": spec.config, "task_id": spec.id},
                      disable_env_checker=True, order_enforce=False)
 
 
@@ -80,7 +99,52 @@ def tagged(tag: str) -> list[str]:
 
 
 def task_spec(task_id: str) -> TaskSpec:
+    """The task ``task_id`` (``"Grid15Eval-v0"`` stands for ``"ipp_bench/Grid15Eval-v0"``)."""
     try:
-        return TASKS[task_id]
+        return TASKS[resolve_task(task_id)]
     except KeyError:
         raise ValueError(f"unknown task {task_id!r}: valid are {sorted(TASKS)}") from None
+
+
+def resolve_task(name: str) -> str:
+    """The full task id of ``name``: the namespace prefix is optional. Does not check it exists."""
+    name = name.strip()
+    return name if "/" in name else f"{NAMESPACE}/{name}"
+
+
+def short_task_id(task_id: str) -> str:
+    """``"ipp_bench/Grid15Eval-v0"`` -> ``"Grid15Eval-v0"`` (tables, file names)."""
+    return task_id.removeprefix(NAMESPACE + "/")
+
+
+def task_config(task_id: str, overrides: dict[str, Any] | None = None) -> IPPConfig:
+    """The configuration of task ``task_id`` with ``overrides`` (fields by name) applied.
+
+    Raises:
+        ValueError: unknown task, or an override that names no field or has a bad value.
+    """
+    config = task_spec(task_id).config
+    return config.replace(**overrides) if overrides else config
+
+
+def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
+    """``["budget_s=60", "report_times=[20,40,60]"]`` -> ``{"budget_s": 60, "report_times": [20, 40, 60]}``.
+
+    The ``--env KEY=VALUE`` options of the command line. Values are read as JSON where they parse
+    (numbers, lists, true/false/null), else kept as text (which a numeric field then refuses,
+    naming itself).
+
+    Raises:
+        ValueError: an item that is not ``key=value``.
+    """
+    out: dict[str, Any] = {}
+    for item in items:
+        key, eq, raw = item.partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise ValueError(f"--env {item!r} is not KEY=VALUE (e.g. --env budget_s=100)")
+        try:
+            out[key] = json.loads(raw)
+        except json.JSONDecodeError:
+            out[key] = raw.strip()
+    return out

@@ -8,6 +8,9 @@ episode's numbers are the same whichever backend or worker count runs it.
 - ``serial``: one job after another in this process.
 - ``process``: :class:`concurrent.futures.ProcessPoolExecutor` with the ``forkserver`` start
   method (``spawn`` where there is none), never ``fork`` (a forked BLAS or Ray thread pool can hang).
+  Workers ignore Ctrl-C (the run's process handles it and stops them) and exit by themselves when
+  the run's process dies (SIGTERM, SIGKILL): a watchdog thread in each worker checks every
+  half second that it is still there, so no worker is left idle.
 - ``ray``: one Ray task per job (``num_cpus=1``) on the cluster at ``address`` /
   ``RAY_ADDRESS``, on an already initialised Ray, or on a local Ray started here. Needs
   ``pip install "ipp-bench[ray]"``; on a remote cluster ipp-bench must be installed there too.
@@ -17,11 +20,13 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import TypeVar
 
-from .._threads import limit_blas_threads
+from .._threads import available_cpus, limit_blas_threads
 
 BACKENDS = ("serial", "process", "ray")
 
@@ -29,19 +34,41 @@ J = TypeVar("J")
 R = TypeVar("R")
 
 
-def available_cpus() -> int:
-    """CPUs this process may run on (the affinity mask where the OS has one)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover (macOS, Windows)
-        return max(1, os.cpu_count() or 1)
+class ExecutorError(RuntimeError):
+    """A backend that cannot start (e.g. no Ray cluster at the address); the message says how to fix it."""
 
 
-def init_worker() -> None:
+WATCH_PERIOD_S = 0.5  # [s] how often a pool worker checks that the run's process is alive
+
+
+def init_worker(owner_pid: int | None = None) -> None:
     """Per-worker setup: one BLAS thread (numpy's and scipy's OpenBLAS both; measured in a fresh
     forkserver worker before ``limit_blas_threads`` loaded scipy.linalg itself, scipy's BLAS kept
-    2 threads and greedy decisions were many times slower)."""
+    2 threads and greedy decisions were many times slower). In a pool worker (``owner_pid``: the
+    run's process), Ctrl-C is left to the owner, and the worker exits when the owner is gone."""
     limit_blas_threads()
+    if owner_pid is not None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        threading.Thread(target=_exit_with_owner, args=(owner_pid, os.getppid()), daemon=True,
+                         name="ipp-bench-owner-watch").start()
+
+
+def _owner_gone(owner_pid: int, parent_pid: int) -> bool:
+    if os.getppid() != parent_pid:  # our parent (the owner, or its forkserver) died: we were re-parented
+        return True
+    try:
+        os.kill(owner_pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # pragma: no cover (a pid reused by another user's process)
+        return True
+    return False
+
+
+def _exit_with_owner(owner_pid: int, parent_pid: int) -> None:
+    while not _owner_gone(owner_pid, parent_pid):
+        threading.Event().wait(WATCH_PERIOD_S)
+    os._exit(1)
 
 
 def _call_in_worker(fn: Callable[[J], R], job: J) -> R:
@@ -60,7 +87,7 @@ class SerialExecutor:
         for job in jobs:
             yield job, fn(job)
 
-    def close(self) -> None:
+    def close(self, abort: bool = False) -> None:
         pass
 
     def describe(self) -> str:
@@ -84,7 +111,7 @@ class ProcessExecutor:
         if self._pool is None:
             self._pool = ProcessPoolExecutor(max_workers=self.workers,
                                              mp_context=multiprocessing.get_context(self.start_method),
-                                             initializer=init_worker)
+                                             initializer=init_worker, initargs=(os.getpid(),))
         pending = {self._pool.submit(fn, job): job for job in jobs}
         try:
             while pending:
@@ -96,10 +123,15 @@ class ProcessExecutor:
             for fut in pending:
                 fut.cancel()
 
-    def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+    def close(self, abort: bool = False) -> None:
+        """Shut the pool down; ``abort``: stop the workers now instead of letting running jobs end."""
+        if self._pool is None:
+            return
+        if abort:
+            for proc in list(getattr(self._pool, "_processes", {}).values()):  # no public way to stop them
+                proc.terminate()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._pool = None
 
     def describe(self) -> str:
         return f"process pool, {self.workers} workers ({self.start_method})"
@@ -134,7 +166,13 @@ class RayExecutor:
         if ray.is_initialized():
             self.where = "the Ray already initialised in this process"
         elif self.address:
-            ray.init(address=self.address, log_to_driver=False)
+            try:
+                ray.init(address=self.address, log_to_driver=False)
+            except ConnectionError:
+                raise ExecutorError(
+                    f"no Ray cluster found at {self.address!r}: start one with 'ray start --head' (on this "
+                    "machine) or pass the address of a running one; without --address (and RAY_ADDRESS) a "
+                    "local Ray is started for the run") from None
             self._owns = True
             self.where = f"the Ray cluster at {self.address}"
         else:
@@ -156,7 +194,7 @@ class RayExecutor:
             for ref in refs:
                 ray.cancel(ref, force=True)
 
-    def close(self) -> None:
+    def close(self, abort: bool = False) -> None:
         if self._owns and self._ray.is_initialized():
             self._ray.shutdown()
         self._owns = False
@@ -208,4 +246,4 @@ def make_executor(backend: str, workers: int | None = None, address: str | None 
     return RayExecutor(workers, address)
 
 
-__all__ = ["BACKENDS", "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args", "default_backend", "make_executor"]
+__all__ = ["BACKENDS", "ExecutorError", "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args", "default_backend", "make_executor"]

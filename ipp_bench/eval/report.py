@@ -2,64 +2,82 @@
 
 Everything is computed from ``results.csv`` alone (:func:`write_report`), so a report can be made
 again from a results file at any time. Every cell is the mean over episodes with a 95% percentile
-bootstrap interval (:func:`bootstrap_ci`, 2000 resamples, fixed seed: the same CSV always gives the
-same report). The best mean per task and column is in bold: the highest reduction, the lowest
+bootstrap interval (:func:`bootstrap_ci`: ``scipy.stats.bootstrap``, 2000 resamples, fixed seed,
+so the same CSV always gives the same report; with one episode there is no interval, and the
+report says so). The best mean per task and column is in bold: the highest reduction, the lowest
 runtime per decision (means equal at the printed precision are all bold).
+
+The paired comparison (:func:`paired_table`) sets each planner against a reference planner
+(``--reference``, default ``greedy``) on the same episodes: per task and report time, the mean
+difference of the reduction, its 95% paired bootstrap interval and the episodes won.
 
 Files written:
 
 ``leaderboard.md``
     rows = (task, planner), columns = uncertainty reduction and RMSE reduction at each report time
-    and the runtime per decision (the mean of each episode's mean decision time).
+    and the runtime per decision (the mean of each episode's mean decision time); then the paired
+    comparison with the reference planner, and the absolute values at the end of the mission.
 ``curves_<task>.png``
     ROI trace and ROI RMSE over mission time per planner: mean with a shaded 95% band.
 ``runtime_per_decision.png``
     runtime per decision per planner and task (log scale, 95% interval whiskers).
 
 Plots use matplotlib's Agg canvas through :class:`matplotlib.figure.Figure` (no pyplot, no
-display, no global backend switch).
+display, no global backend switch). Without matplotlib (a core-only install) the report is the
+markdown alone, with a note naming the extra that adds the plots.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import stats
+
+from ..envs import short_task_id
+from .results import read_results
 
 N_RESAMPLES = 2000
 LEVEL = 0.95
 BOOTSTRAP_SEED = 0
-NAMESPACE = "ipp_bench/"
+BOOTSTRAP_METHOD = "percentile"
+DEFAULT_REFERENCE = "greedy"
+NO_INTERVAL = "no interval: 1 episode"
 
 REDUCTIONS = (("uncertainty_reduction_pct", "Uncertainty reduction"), ("rmse_reduction_pct", "RMSE reduction"))
 CURVES = (("trace_roi", "ROI trace of the covariance"), ("rmse_roi", "ROI RMSE"))
 
 
-def bootstrap_ci(values: Sequence[float], n_resamples: int = N_RESAMPLES, level: float = LEVEL,
-                 seed: int = BOOTSTRAP_SEED) -> tuple[float, float, float]:
-    """Mean of ``values`` and its percentile bootstrap interval ``(mean, low, high)``.
+# scipy >= 1.15 names the generator ``rng``, older releases ``random_state``
+_RNG_ARG = "rng" if "rng" in inspect.signature(stats.bootstrap).parameters else "random_state"
 
-    One value gives ``(v, v, v)``; the resampling is seeded, so the result is reproducible.
+
+def bootstrap_ci(values: Sequence[float], n_resamples: int = N_RESAMPLES, level: float = LEVEL,
+                 seed: int = BOOTSTRAP_SEED) -> tuple[float, float | None, float | None]:
+    """Mean of ``values`` and its bootstrap interval ``(mean, low, high)`` (``scipy.stats.bootstrap``,
+    :data:`BOOTSTRAP_METHOD`, seeded: reproducible).
+
+    One value has no interval: ``(v, None, None)``. Equal values give ``(v, v, v)``.
     """
     x = np.asarray(values, dtype=np.float64)
     if x.size == 0:
         raise ValueError("bootstrap_ci needs at least one value")
     mean = float(x.mean())
     if x.size == 1:
+        return mean, None, None
+    if np.all(x == x[0]):
         return mean, mean, mean
-    rng = np.random.default_rng(seed)
-    means = x[rng.integers(0, x.size, size=(n_resamples, x.size))].mean(axis=1)
-    alpha = (1.0 - level) / 2.0
-    low, high = np.quantile(means, [alpha, 1.0 - alpha])
-    return mean, float(low), float(high)
+    res = stats.bootstrap((x,), np.mean, confidence_level=level, n_resamples=n_resamples,
+                          method=BOOTSTRAP_METHOD, **{_RNG_ARG: np.random.default_rng(seed)})
+    return mean, float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
-def short_task(task: str) -> str:
-    return task.removeprefix(NAMESPACE)
+short_task = short_task_id
 
 
 class Aggregate:
@@ -73,10 +91,12 @@ class Aggregate:
         self.runtime: dict[tuple[str, str], dict[int, float]] = defaultdict(dict)
         self.times: dict[str, list[float]] = defaultdict(list)
         self.seeds: dict[tuple[str, str], set[int]] = defaultdict(set)
+        self._by_seed: dict[tuple[str, str, float, str], dict[int, float]] = defaultdict(dict)
         for r in rows:
             task, planner, t = r["task"], r["planner"], float(r["time_s"])
             for key in ("trace_roi", "rmse_roi", "uncertainty_reduction_pct", "rmse_reduction_pct"):
                 self.values[(task, planner, t, key)].append(float(r[key]))
+                self._by_seed[(task, planner, t, key)][int(r["seed"])] = float(r[key])
             self.runtime[(task, planner)][int(r["seed"])] = float(r["decision_time_mean_s"])
             self.seeds[(task, planner)].add(int(r["seed"]))
             if t not in self.times[task]:
@@ -87,6 +107,10 @@ class Aggregate:
     def stat(self, task: str, planner: str, time_s: float, key: str) -> tuple[float, float, float] | None:
         v = self.values.get((task, planner, time_s, key))
         return bootstrap_ci(v) if v else None
+
+    def by_seed(self, task: str, planner: str, time_s: float, key: str) -> dict[int, float]:
+        """Per-episode values keyed by seed (for pairing planners on the same episodes)."""
+        return dict(self._by_seed.get((task, planner, time_s, key), {}))
 
     def runtime_stat(self, task: str, planner: str) -> tuple[float, float, float] | None:
         v = self.runtime.get((task, planner))
@@ -121,14 +145,53 @@ def _best(means: dict[str, float], fmt, lowest: bool) -> set[str]:
     return {p for p, m in means.items() if fmt(m) == fmt(target)}
 
 
-def _cell(stat: tuple[float, float, float] | None, fmt, unit: str, bold: bool) -> str:
+def _cell(stat: tuple[float, float | None, float | None] | None, fmt, unit: str, bold: bool) -> str:
     if stat is None:
         return "–"
     mean, low, high = stat
     head = f"{fmt(mean)}{unit}"
     if bold:
         head = f"**{head}**"
+    if low is None:
+        return f"{head} ({NO_INTERVAL})"
     return f"{head} [{fmt(low)}, {fmt(high)}]"
+
+
+def resolve_reference(reference: str, planners: Sequence[str]) -> str | None:
+    """The planner spec among ``planners`` that ``reference`` names (a spec, or a name when exactly
+    one spec of that planner ran), or None."""
+    if reference in planners:
+        return reference
+    named = [p for p in planners if p.partition(":")[0] == reference]
+    return named[0] if len(named) == 1 else None
+
+
+def paired_table(agg: Aggregate, reference: str, key: str = "uncertainty_reduction_pct") -> str:
+    """Each planner minus ``reference`` on the same episodes (seeds), per task and report time:
+    mean difference [95% paired bootstrap interval], episodes won / episodes paired."""
+    times = agg.all_times()
+    header = ["Environment", "Method"] + [f"{t:g} s" for t in times]
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join([":--", ":--"] + ["--:"] * len(times)) + "|"]
+    for task in agg.tasks:
+        first = True
+        for planner in agg.planners:
+            if planner == reference or not agg.episodes(task, planner):
+                continue
+            row = [f"**{short_task(task)}**" if first else "", f"`{planner}`"]
+            first = False
+            for t in times:
+                mine, ref = agg.by_seed(task, planner, t, key), agg.by_seed(task, reference, t, key)
+                seeds = sorted(set(mine) & set(ref))
+                if not seeds:
+                    row.append("–")
+                    continue
+                d = np.array([mine[s] - ref[s] for s in seeds])
+                mean, low, high = bootstrap_ci(d)
+                won = int(np.sum(d > 0))
+                interval = f"({NO_INTERVAL})" if low is None else f"[{low:+.1f}, {high:+.1f}]"
+                row.append(f"{mean:+.1f} {interval}, won {won}/{len(seeds)}")
+            lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def markdown_table(agg: Aggregate) -> str:
@@ -177,7 +240,8 @@ def final_table(agg: Aggregate) -> str:
 
 
 def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = False,
-                    plots: Sequence[str] = ()) -> str:
+                    plots: Sequence[str] = (), reference: str | None = DEFAULT_REFERENCE,
+                    notes: Sequence[str] = ()) -> str:
     counts = sorted({agg.episodes(t, p) for t in agg.tasks for p in agg.planners if agg.episodes(t, p)})
     n_text = " to ".join(str(c) for c in (counts[0], counts[-1])) if len(counts) > 1 else str(counts[0] if counts else 0)
     parts = ["# ipp-bench leaderboard", ""]
@@ -185,18 +249,29 @@ def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = Fa
         parts += [f"Made with `{command}`" + (" (quick mode: few episodes, cheaper look-ahead)." if quick else "."), ""]
     legend = (
         f"Mean over {n_text} episodes per task and planner (every planner meets the same episode seeds), "
-        f"with the {LEVEL:.0%} percentile bootstrap interval of the mean in brackets ({N_RESAMPLES} resamples). "
+        f"with the {LEVEL:.0%} {BOOTSTRAP_METHOD} bootstrap interval of the mean in brackets "
+        f"(scipy.stats.bootstrap, {N_RESAMPLES} resamples, seed {BOOTSTRAP_SEED}; one episode has no interval). "
         "Reductions are relative to the prior, over the region of interest. Bold: the best per task and column "
         "(highest reduction, lowest runtime). Runtime per decision: wall time of the planner's decision, "
         "mean over each episode's decisions, then over episodes.")
-    parts += [
-        legend,
-        "",
-        markdown_table(agg),
-        "## Absolute values at the end of the mission",
-        "",
-        final_table(agg),
-    ]
+    parts += [legend, "", markdown_table(agg)]
+    ref = resolve_reference(reference, agg.planners) if reference else None
+    if ref is not None and len(agg.planners) > 1:
+        for key, label in REDUCTIONS:
+            parts += [
+                f"## {label}: each planner minus `{ref}`, on the same episodes",
+                "",
+                f"Mean difference in percentage points [{LEVEL:.0%} paired {BOOTSTRAP_METHOD} bootstrap interval], "
+                f"and the episodes where the planner's reduction is higher than `{ref}`'s.",
+                "",
+                paired_table(agg, ref, key),
+            ]
+    elif reference:
+        parts += [f"No paired comparison: the reference planner `{reference}` is not among the planners "
+                  "(pass --reference SPEC).", ""]
+    parts += ["## Absolute values at the end of the mission", "", final_table(agg)]
+    if notes:
+        parts += [f"Note: {n}" for n in notes] + [""]
     if plots:
         parts += ["## Plots", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in plots] + [""]
     return "\n".join(parts)
@@ -231,6 +306,7 @@ def plot_curves(agg: Aggregate, task: str, path: str | Path) -> Path:
             stats = [agg.stat(task, planner, t, key) for t in times]
             if not stats or any(s is None for s in stats):
                 continue
+            stats = [(m, m if lo is None else lo, m if hi is None else hi) for m, lo, hi in stats]  # 1 episode
             mean, low, high = (np.array(v) for v in zip(*stats))
             ax.plot(times, mean, marker="o", color=colours[planner], label=planner)
             ax.fill_between(times, low, high, color=colours[planner], alpha=0.2, linewidth=0)
@@ -254,8 +330,8 @@ def plot_runtime(agg: Aggregate, path: str | Path) -> Path:
     for j, task in enumerate(agg.tasks):
         stats = [agg.runtime_stat(task, p) for p in agg.planners]
         mean = np.array([s[0] if s else np.nan for s in stats])
-        low = np.array([s[1] if s else np.nan for s in stats])
-        high = np.array([s[2] if s else np.nan for s in stats])
+        low = np.array([(s[0] if s[1] is None else s[1]) if s else np.nan for s in stats], dtype=float)
+        high = np.array([(s[0] if s[2] is None else s[2]) if s else np.nan for s in stats], dtype=float)
         floor = 1e-7  # a log axis cannot show 0
         mean_c = np.maximum(mean, floor)
         err = np.vstack([mean_c - np.maximum(low, floor), np.maximum(high, floor) - mean_c])
@@ -274,30 +350,42 @@ def plot_runtime(agg: Aggregate, path: str | Path) -> Path:
 
 def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[str] | None = None,
                  planners: Sequence[str] | None = None, command: str | None = None,
-                 quick: bool = False) -> list[Path]:
+                 quick: bool = False, reference: str | None = DEFAULT_REFERENCE,
+                 log: Callable[[str], None] | None = None) -> list[Path]:
     """Write ``leaderboard.md``, ``curves_<task>.png`` and ``runtime_per_decision.png`` from a results.csv.
+
+    Without matplotlib the plots are left out, with a note in the report (and through ``log``).
 
     Returns:
         The paths written.
     """
-    from .leaderboard import read_results
-
     out_dir = Path(out_dir)
     agg = Aggregate(read_results(results_csv), tasks, planners)
     written: list[Path] = []
-    for task in agg.tasks:
-        if agg.times.get(task):
-            written.append(plot_curves(agg, task, out_dir / f"curves_{short_task(task).replace('/', '_')}.png"))
-    if agg.runtime:
-        written.append(plot_runtime(agg, out_dir / "runtime_per_decision.png"))
+    notes: list[str] = []
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        notes.append('the plots need matplotlib, which is not installed: pip install "ipp-bench[eval]"')
+    else:
+        for task in agg.tasks:
+            if agg.times.get(task):
+                written.append(plot_curves(agg, task, out_dir / f"curves_{short_task(task).replace('/', '_')}.png"))
+        if agg.runtime:
+            written.append(plot_runtime(agg, out_dir / "runtime_per_decision.png"))
+    if log is not None:
+        for note in notes:
+            log(f"note: {note}")
     md = out_dir / "leaderboard.md"
-    md.write_text(markdown_report(agg, command, quick, [p.name for p in written]))
+    md.write_text(markdown_report(agg, command, quick, [p.name for p in written], reference, notes))
     return [md, *written]
 
 
 __all__ = [
     "Aggregate",
+    "DEFAULT_REFERENCE",
     "bootstrap_ci",
+    "paired_table",
     "markdown_report",
     "markdown_table",
     "plot_curves",

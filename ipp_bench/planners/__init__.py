@@ -3,6 +3,16 @@
 ``make_planner("mcts:simulations=200,exploration=0.5")`` builds the MCTS planner with two fields of
 its config replaced. Planner modules are imported lazily, so ``attention`` (torch) costs nothing
 until it is asked for.
+
+Planners of other packages join through the ``ipp_bench.planners`` entry-point group (the way
+gymnasium and pytest find plugins): a package declaring, in its ``pyproject.toml``,
+
+    [project.entry-points."ipp_bench.planners"]
+    theirs = "their_package.module:TheirPlanner"
+
+is found by name (``ipp-bench leaderboard --planners theirs``) once installed. The class follows
+:class:`~ipp_bench.planners.base.GraphPlanner` or :class:`~ipp_bench.planners.base.ContinuousPlanner`
+and has a ``Config`` dataclass. A built-in name is never replaced by a plugin.
 """
 
 from __future__ import annotations
@@ -10,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import typing
+from importlib.metadata import entry_points
 from typing import Any
 
 from .base import ContinuousPlanner, GraphPlanner, Planner, RobotView
@@ -23,6 +34,18 @@ REGISTRY: dict[str, str] = {
     "cmaes": "ipp_bench.planners.cmaes:CMAESPlanner",
     "attention": "ipp_bench.policies.planner:AttentionPlanner",
 }
+ENTRY_POINT_GROUP = "ipp_bench.planners"
+_plugins_loaded = False
+
+
+def _load_plugins() -> None:
+    """Add the planners other packages declare under :data:`ENTRY_POINT_GROUP` (once)."""
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        REGISTRY.setdefault(ep.name, ep.value)
+    _plugins_loaded = True
 
 
 def register(name: str, target: str) -> None:
@@ -31,16 +54,38 @@ def register(name: str, target: str) -> None:
 
 
 def planner_names() -> list[str]:
+    """Every planner name: built-in, registered, and from installed plugins."""
+    _load_plugins()
     return list(REGISTRY)
 
 
 def planner_class(name: str) -> type:
+    _load_plugins()
     try:
         target = REGISTRY[name]
     except KeyError:
         raise ValueError(f"unknown planner {name!r}: valid are {planner_names()}") from None
     module, cls = target.split(":")
     return getattr(importlib.import_module(module), cls)
+
+
+def split_specs(items: typing.Iterable[str]) -> list[str]:
+    """Planner specs from command-line words, where a word may hold several, comma-separated:
+    ``["random,coverage", "mcts:simulations=8,exploration=0.5,greedy"]`` ->
+    ``["random", "coverage", "mcts:simulations=8,exploration=0.5", "greedy"]``. A comma part with
+    ``=`` and no ``:`` is a setting of the spec before it.
+    """
+    specs: list[str] = []
+    for item in items:
+        for part in item.split(","):
+            part = part.strip()
+            if not part:
+                continue
+            if "=" in part and ":" not in part and specs and ":" in specs[-1]:
+                specs[-1] += "," + part
+            else:
+                specs.append(part)
+    return specs
 
 
 def parse_spec(spec: str) -> tuple[str, dict[str, str]]:
@@ -97,5 +142,5 @@ def make_planner(spec: str, **overrides: Any):
     return cls(make_config(name, {**spec_overrides, **overrides}))
 
 
-__all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "REGISTRY", "register",
-           "planner_names", "planner_class", "parse_spec", "make_config", "make_planner"]
+__all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "REGISTRY", "ENTRY_POINT_GROUP", "register",
+           "planner_names", "planner_class", "split_specs", "parse_spec", "make_config", "make_planner"]

@@ -16,12 +16,14 @@ leaves torch's setting alone), as ``ipp_bench._threads`` does for BLAS.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..planners.base import GraphPlanner, RobotView
+from ..planners.base import GraphPlanner
 
 
 @dataclass(frozen=True)
@@ -72,11 +74,19 @@ class AttentionPlanner(GraphPlanner):
             torch.set_num_threads(config.threads)
         self.device = torch.device(config.device)
         if net is None:
-            self.net, self.meta = load_checkpoint(config.checkpoint or None, device=self.device)
+            from .checkpoint import SHIPPED_CHECKPOINT
+
+            path = Path(config.checkpoint) if config.checkpoint else SHIPPED_CHECKPOINT
+            self.net, self.meta = load_checkpoint(path, device=self.device)
             self._source = config.checkpoint or "(shipped)"
+            self._sha256 = hashlib.sha256(path.read_bytes()).hexdigest()
         else:
-            self.net, self.meta, self._source = net, {}, "(network in memory)"
+            self.net, self.meta, self._source, self._sha256 = net, {}, "(network in memory)", ""
         self._checked_shape: tuple | None = None
+
+    def fingerprint(self) -> dict[str, str]:
+        """The checkpoint's content hash: a results folder refuses rows of another network."""
+        return {"checkpoint_sha256": self._sha256} if self._sha256 else {}
 
     @classmethod
     def from_net(cls, net, device="cpu", sample: bool = False) -> AttentionPlanner:

@@ -38,7 +38,6 @@ import argparse
 import csv
 import json
 import math
-import os
 import shlex
 import signal
 import sys
@@ -52,6 +51,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ipp_bench._threads import available_cpus
+from ipp_bench.envs.registry import parse_overrides
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from ipp_bench.policies.network import MASKED_LOGIT, AttentionNet, NetConfig
 
@@ -230,13 +231,6 @@ def _resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def _available_cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return os.cpu_count() or 1
-
-
 def set_threads(n: int = 0) -> int:
     """Torch intra-op threads: ``n``, or half the CPUs available to this process (at least 1).
 
@@ -245,7 +239,7 @@ def set_threads(n: int = 0) -> int:
     1.5 ms with one thread and 200 ms with two (OpenMP threads waiting on each other whenever one
     is descheduled). Half the CPUs leaves room for the environments and for other processes.
     """
-    n = n or max(1, _available_cpus() // 2)
+    n = n or max(1, available_cpus() // 2)
     torch.set_num_threads(n)
     return n
 
@@ -261,29 +255,15 @@ def make_env(task: str, **overrides: Any):
     return gym.make(task, **overrides)
 
 
-def parse_env_overrides(items: list[str]) -> dict[str, Any]:
-    """``["budget_s=200"]`` -> ``{"budget_s": 200}`` (JSON where it parses, else text)."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, eq, raw = item.partition("=")
-        if not eq or not key.strip():
-            raise ValueError(f"--env {item!r} is not KEY=VALUE (e.g. --env budget_s=200)")
-        try:
-            out[key.strip()] = json.loads(raw)
-        except json.JSONDecodeError:
-            out[key.strip()] = raw.strip()
-    return out
-
-
 def make_train_env(cfg: TrainArgs):
     """The training task with the run's ``--env`` overrides."""
-    return make_env(cfg.task, **parse_env_overrides(cfg.env))
+    return make_env(cfg.task, **parse_overrides(cfg.env))
 
 
 def _validation(net: AttentionNet, cfg: TrainArgs, device: torch.device) -> dict[str, float]:
     if cfg.val_task:
         return evaluate_net(net, cfg.val_task, cfg.eval_episodes, device)
-    return evaluate_net(net, cfg.task, cfg.eval_episodes, device, overrides=parse_env_overrides(cfg.env))
+    return evaluate_net(net, cfg.task, cfg.eval_episodes, device, overrides=parse_overrides(cfg.env))
 
 
 def make_expert(name: str) -> _PlannerExpert:

@@ -22,10 +22,11 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+
+from ipp_bench.data import check_output_file
 
 DEFAULT_TASK = "ipp_bench/MuJoCoWeed15-v0"
 
@@ -374,9 +375,12 @@ def run_demo(args: argparse.Namespace) -> int:
         size = _parse_size(args.size)
         if args.fps < 1 or args.speedup <= 0 or args.hold < 0:
             raise ValueError("--fps must be >= 1, --speedup > 0 and --hold >= 0")
-        out = Path(args.out)
-        if out.suffix.lower() != ".mp4":
-            raise ValueError(f"--out {args.out!r} is invalid: the demo writes an .mp4")
+        if args.seed < 0:
+            raise ValueError(f"--seed {args.seed} is invalid: expected an integer >= 0")
+        out = check_output_file(args.out, "--out", suffix=".mp4")  # every path, before the episode
+        png = args.compare_out or str(out.with_name(out.stem + "_compare.png"))
+        if args.compare:
+            check_output_file(png, "--compare-out", suffix=".png")
         out.parent.mkdir(parents=True, exist_ok=True)
         log, frames = record(args.task, args.planner, args.seed, str(out), args.budget, size, args.fps,
                              args.speedup, args.crf, args.hold, progress=not args.no_progress)
@@ -396,7 +400,7 @@ def run_demo(args: argparse.Namespace) -> int:
                 other = fly_episode(env, args.compare, args.seed)
             finally:
                 env.close()
-            png = args.compare_out or str(out.with_name(out.stem + "_compare.png"))
+            Path(png).parent.mkdir(parents=True, exist_ok=True)
             cfg = env.config.mission
             compare_plot([log, other], cfg.budget_s, cfg.report_times, png,
                          f"{args.task}, seed {args.seed}")

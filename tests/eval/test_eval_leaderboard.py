@@ -9,6 +9,7 @@ from lb_helpers import (EPISODES, PLANNERS, TASKS, TINY_ENV, assert_same_results
                         without_timing)
 
 import ipp_bench.eval.leaderboard as lb
+import ipp_bench.eval.plan as plan_module
 from ipp_bench.eval.leaderboard import (
     COLUMNS,
     QUICK_OVERRIDES,
@@ -73,7 +74,7 @@ def test_quick_overrides_fit_every_planner_and_the_spec_wins():
 
 def test_default_planners_leave_out_what_cannot_load_but_explicit_fails_loudly(monkeypatch):
     monkeypatch.setitem(REGISTRY, "ghost", "ipp_bench.planners.no_such_module:Ghost")
-    monkeypatch.setattr(lb, "planner_names", lambda: ["random", "ghost"])
+    monkeypatch.setattr(plan_module, "planner_names", lambda: ["random", "ghost"])
     notes = []
     plan = make_plan(tasks=["Grid15Eval-v0"], episodes=1, log=notes.append)
     assert plan.planners == ("random",)
@@ -104,7 +105,7 @@ def test_results_csv_has_the_columns_and_one_row_per_report_time(reference_run):
         assert r["decisions"] > 0 and r["decision_time_max_s"] >= r["decision_time_mean_s"] >= 0
         assert 0 < r["trace_roi"] and 0 < r["rmse_roi"]
     meta = json.loads((out / "run.json").read_text())
-    assert meta["fingerprint"]["episodes"] == EPISODES and meta["seeds"] == list(plan.seeds)
+    assert meta["episodes"] == EPISODES and meta["seeds"] == list(plan.seeds)
 
 
 def test_rerun_with_same_arguments_runs_nothing(reference_copy):
@@ -161,7 +162,7 @@ def test_interrupted_run_keeps_finished_episodes_and_resumes(reference_run, tmp_
 
     plan = tiny_plan(tasks=TASKS[:1])
     monkeypatch.setattr(lb, "run_job", dying_job)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(lb.Interrupted, match="5 of 8 episodes kept"):
         run_tiny(out, plan)
     assert len(results(out)) == 5 * len(TINY_ENV["report_times"])  # every finished episode is on disk
     monkeypatch.setattr(lb, "run_job", real)
@@ -174,13 +175,24 @@ def test_interrupted_run_keeps_finished_episodes_and_resumes(reference_run, tmp_
 def test_different_arguments_are_refused_naming_them(reference_copy):
     before = (reference_copy / RESULTS_CSV).read_text()
     with pytest.raises(ResultsMismatchError) as err:
-        run_tiny(reference_copy, tiny_plan(episodes=3, planners=["random", "greedy"]))
+        run_tiny(reference_copy, tiny_plan(seed=8, planners=["random", "greedy"]))
     message = str(err.value)
-    assert "episodes" in message and "planners" in message and "--out" in message
+    assert "seed" in message and "planners" in message and "--out" in message
     assert "  tasks:" not in message and "task_configs" not in message  # only what differs is named
     with pytest.raises(ResultsMismatchError, match="budget_s"):
         run_tiny(reference_copy, tiny_plan(env_overrides={**TINY_ENV, "budget_s": 20, "report_times": [20]}))
     assert (reference_copy / RESULTS_CSV).read_text() == before
+
+
+def test_more_episodes_extend_the_folder_and_fewer_are_refused(reference_run, reference_copy):
+    before = results(reference_copy)
+    summary = run_tiny(reference_copy, tiny_plan(episodes=EPISODES + 1))
+    assert summary.skipped == len(TASKS) * len(PLANNERS) * EPISODES and summary.ran == len(TASKS) * len(PLANNERS)
+    after = results(reference_copy)
+    assert without_timing([r for r in after if r["seed"] in tiny_plan().seeds]) == without_timing(before)
+    assert json.loads((reference_copy / "run.json").read_text())["episodes"] == EPISODES + 1
+    with pytest.raises(ResultsMismatchError, match=f"--episodes {EPISODES + 1} or more"):
+        run_tiny(reference_copy, tiny_plan(episodes=EPISODES))
 
 
 def test_tuple_and_list_overrides_are_the_same_arguments(reference_copy):

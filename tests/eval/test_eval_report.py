@@ -20,7 +20,7 @@ def test_bootstrap_ci_brackets_the_mean_and_is_reproducible():
     se = x.std(ddof=1) / np.sqrt(x.size)  # the percentile interval is close to mean +- 1.96 se
     assert high - low == pytest.approx(2 * 1.96 * se, rel=0.15)
     assert bootstrap_ci(x) == (mean, low, high)
-    assert bootstrap_ci([3.0]) == (3.0, 3.0, 3.0)
+    assert bootstrap_ci([3.0]) == (3.0, None, None)  # one episode: no interval
     assert bootstrap_ci([2.0, 2.0, 2.0]) == (2.0, 2.0, 2.0)
     with pytest.raises(ValueError):
         bootstrap_ci([])
@@ -70,9 +70,10 @@ def test_report_of_a_run_has_every_planner_and_the_plots(reference_run):
             data = p.read_bytes()
             assert data[:8] == PNG_MAGIC and len(data) > 10_000
     md = (out / "leaderboard.md").read_text()
-    for planner in PLANNERS:
-        assert md.count(f"`{planner}`") == 4  # two tasks, two tables
-    assert md.count("**Grid15Eval-v0**") == 2 and "Uncertainty reduction 20 s" in md
+    for planner in PLANNERS:  # two tasks, two tables, and (all but the reference) two paired tables
+        assert md.count(f"`{planner}`") == 8  # greedy: its two tables, and named by the paired ones
+    assert md.count("**Grid15Eval-v0**") == 4 and "Uncertainty reduction 20 s" in md
+    assert "each planner minus `greedy`, on the same episodes" in md
 
 
 def test_write_report_from_a_csv_alone(tmp_path):
@@ -82,3 +83,35 @@ def test_write_report_from_a_csv_alone(tmp_path):
     written = write_report(csv_path, tmp_path)
     assert [p.name for p in written] == ["leaderboard.md", "curves_Toy-v0.png", "runtime_per_decision.png"]
     assert "![runtime_per_decision](runtime_per_decision.png)" in written[0].read_text()
+
+
+def test_paired_comparison_against_the_reference():
+    from ipp_bench.eval.report import paired_table
+
+    table = paired_table(Aggregate(synthetic_rows()), "bad")
+    good = [c.strip() for c in table.strip().splitlines()[2].strip("|").split("|")]
+    # good - bad = 30 points at every episode and time: mean +30.0, a degenerate interval, won 3 of 3
+    assert good[:2] == ["**Toy-v0**", "`good`"]
+    assert good[2] == "+30.0 [+30.0, +30.0], won 3/3" and good[3] == "+30.0 [+30.0, +30.0], won 3/3"
+    one = [r for r in synthetic_rows() if r["seed"] == 1]
+    assert "(no interval: 1 episode), won 1/1" in paired_table(Aggregate(one), "bad")
+
+
+def test_one_episode_says_there_is_no_interval(tmp_path):
+    one = [r for r in synthetic_rows() if r["seed"] == 1]
+    csv_path = tmp_path / RESULTS_CSV
+    csv_path.write_text(format_header() + format_rows(one))
+    md = write_report(csv_path, tmp_path)[0].read_text()
+    assert "(no interval: 1 episode)" in md and "[61.0, 61.0]" not in md
+
+
+def test_without_matplotlib_the_report_is_the_markdown_and_says_so(tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    csv_path = tmp_path / RESULTS_CSV
+    csv_path.write_text(format_header() + format_rows(synthetic_rows()))
+    notes = []
+    written = write_report(csv_path, tmp_path, log=notes.append)
+    assert [p.name for p in written] == ["leaderboard.md"]
+    assert 'pip install "ipp-bench[eval]"' in written[0].read_text() and notes

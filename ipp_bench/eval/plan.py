@@ -1,0 +1,258 @@
+"""Planning a leaderboard run: resolved, validated arguments and the episodes they make.
+
+:func:`make_plan` turns the command line's arguments (tasks, planner specs, episodes, seed,
+``--quick``, ``--env`` overrides) into a :class:`Plan`: canonical planner specs, the episode
+seeds, and the fingerprint of everything that decides the numbers (the results folder compares it
+on a rerun, see :mod:`ipp_bench.eval.results`).
+
+Episode seeds derive from ``seed`` alone (:func:`episode_seeds`): every planner meets the same
+episodes (field, start, sensor noise), and the first ``n`` seeds stay the same when ``episodes``
+grows, so a rerun with more episodes extends a results folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..envs import tagged, task_config, task_spec
+from ..envs.registry import resolve_task as _resolve
+from ..planners import make_config, make_planner, parse_spec, planner_names
+
+SEED_SCHEME = "SeedSequence(seed).spawn(episodes)[i] -> uint31"
+DEFAULT_EPISODES = 20
+DEFAULT_TAG = "benchmark"
+# --quick: few episodes and cheaper look-ahead (spec overrides, applied unless the spec sets the
+# key itself). Sized so that all benchmark tasks x all planners fit 5 minutes on 2 busy cores:
+# MCTS costs ~20 ms per simulation and ~90 decisions per 200 s episode, CMA-ES ~2.4 ms per
+# evaluation and ~40 decisions (measured at load 5 on 2 cores).
+QUICK_EPISODES = 3
+QUICK_OVERRIDES: dict[str, dict[str, Any]] = {
+    "mcts": {"simulations": 8},
+    "cmaes": {"max_evals": 36},
+}
+
+
+def episode_seeds(seed: int, episodes: int) -> list[int]:
+    """``episodes`` seeds derived from ``seed`` (prefix-stable: more episodes keep the first ones)."""
+    if episodes < 1:
+        raise ValueError(f"episodes = {episodes} is invalid: expected an integer >= 1")
+    if seed < 0:
+        raise ValueError(f"seed = {seed} is invalid: expected an integer >= 0")
+    children = np.random.SeedSequence(int(seed)).spawn(int(episodes))
+    return [int(c.generate_state(1, np.uint32)[0] >> 1) for c in children]
+
+
+def resolve_task(name: str) -> str:
+    """A registered task id; ``"Grid15Eval-v0"`` stands for ``"ipp_bench/Grid15Eval-v0"``."""
+    task_id = _resolve(name)
+    task_spec(task_id)  # ValueError naming the valid ids
+    return task_id
+
+
+def canonical_spec(spec: str, extra: dict[str, Any] | None = None) -> str:
+    """``"mcts:simulations=050"`` -> ``"mcts:simulations=50"``: name, then the overrides sorted, as
+    the planner's config holds them. ``extra`` overrides apply where the spec does not set the key.
+
+    Raises:
+        ValueError: unknown planner or setting, or a value of the wrong type.
+    """
+    name, overrides = parse_spec(spec)
+    overrides = {**(extra or {}), **overrides}
+    config = make_config(name, overrides)
+    if not overrides:
+        return name
+    parts = [f"{k}={_format_value(getattr(config, k))}" for k in sorted(overrides)]
+    return f"{name}:{','.join(parts)}"
+
+
+def _format_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if value is None:
+        return "none"
+    return str(value)
+
+
+def report_times(task: str, env_overrides: dict[str, Any] | None = None) -> tuple[float, ...]:
+    """The report times of ``task`` within its budget (the rows one episode gives)."""
+    return task_config(task, env_overrides).mission.report_times_in_budget
+
+
+def _config_digest(task: str, env_overrides: dict[str, Any]) -> str:
+    blob = json.dumps(task_config(task, env_overrides).to_dict(), sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def planner_fingerprint(planner: Any) -> dict[str, str]:
+    """What a built planner's decisions depend on beyond its spec (the attention planner: its
+    checkpoint's content hash), from its optional ``fingerprint()`` method."""
+    fn = getattr(planner, "fingerprint", None)
+    return dict(fn()) if callable(fn) else {}
+
+
+def default_planners(log: Callable[[str], None] = print) -> list[str]:
+    """Every registered planner that can be built here; the others are left out with a note.
+
+    A planner whose module, extra (torch, pycma) or checkpoint is missing cannot run; that is fine
+    for the default list (a printed note says why), never for a planner asked for by name.
+    """
+    names = []
+    for name in planner_names():
+        try:
+            make_planner(name)
+        except (ImportError, OSError, ValueError) as err:
+            log(f"note: leaving planner {name!r} out of the default list: {type(err).__name__}: {err}")
+            continue
+        names.append(name)
+    return names
+
+
+@dataclass(frozen=True)
+class EpisodeJob:
+    """One episode to run: (task, planner spec, seed) and the env overrides of the run."""
+
+    task: str
+    planner: str
+    seed: int
+    env_overrides: tuple[tuple[str, Any], ...] = ()
+
+    @property
+    def key(self) -> tuple[str, str, int]:
+        return (self.task, self.planner, self.seed)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a leaderboard run evaluates (resolved, validated arguments).
+
+    Attributes:
+        tasks: task ids, in table order.
+        planners: canonical planner specs, in table order.
+        seeds: episode seeds, the same for every (task, planner).
+        env_overrides: IPPConfig fields set on every task (e.g. ``budget_s``), JSON values.
+        quick: ``--quick`` changed something (fewer episodes or cheaper settings); a ``--quick``
+            that changed nothing is no quick run.
+        planner_fingerprints: per planner spec, what its decisions depend on beyond the spec
+            (:func:`planner_fingerprint`).
+    """
+
+    tasks: tuple[str, ...]
+    planners: tuple[str, ...]
+    episodes: int
+    seed: int
+    seeds: tuple[int, ...]
+    env_overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
+    quick: bool = False
+    planner_fingerprints: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
+
+    def fingerprint(self) -> dict[str, Any]:
+        """The arguments that decide the numbers (order-insensitive where order does not matter), as
+        JSON would read them back (tuples become lists), so that a stored one compares equal.
+
+        The number of episodes is not part of it: seeds are prefix-stable, so more episodes extend
+        a folder (:class:`~ipp_bench.eval.results.ResultsStore` checks that none are dropped).
+        """
+        return json.loads(json.dumps({
+            "tasks": sorted(self.tasks),
+            "planners": sorted(self.planners),
+            "seed": self.seed,
+            "env_overrides": {k: self.env_overrides[k] for k in sorted(self.env_overrides)},
+            "task_configs": {t: _config_digest(t, self.env_overrides) for t in sorted(self.tasks)},
+            "planner_fingerprints": {p: self.planner_fingerprints[p] for p in sorted(self.planner_fingerprints)},
+            "seed_scheme": SEED_SCHEME,
+        }, default=str))
+
+    def jobs(self) -> list[EpisodeJob]:
+        """Every episode, seed-major (an interrupted run has all planners on its first seeds)."""
+        overrides = tuple((k, _freeze(v)) for k, v in sorted(self.env_overrides.items()))
+        return [EpisodeJob(t, p, s, overrides) for s in self.seeds for t in self.tasks for p in self.planners]
+
+
+def _freeze(value: Any) -> Any:
+    """JSON lists as tuples (hashable; the configs hold tuples anyway)."""
+    if isinstance(value, list):
+        return tuple(_freeze(v) for v in value)
+    return value
+
+
+def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None = None,
+              episodes: int | None = None, seed: int = 0, quick: bool = False,
+              env_overrides: dict[str, Any] | None = None,
+              log: Callable[[str], None] = print) -> Plan:
+    """Resolve and validate the leaderboard's arguments.
+
+    Args:
+        tasks: task ids (or names without the ``ipp_bench/`` prefix); default: tagged ``benchmark``.
+        planners: planner specs (``"mcts:simulations=50"``); default: every registered planner that
+            can be built here (see :func:`default_planners`).
+        episodes: episodes per (task, planner); default :data:`DEFAULT_EPISODES`, or
+            :data:`QUICK_EPISODES` with ``quick``.
+        seed: base seed of the episode seeds.
+        quick: few episodes and :data:`QUICK_OVERRIDES` on the planners (a spec's own keys win).
+        env_overrides: IPPConfig fields set on every task.
+
+    Raises:
+        ValueError: unknown task, planner or setting; a planner that cannot be built (its message);
+            bad episodes/seed; an override that leaves a task no report time within its budget.
+        ImportError: a planner asked for by name whose extra is missing.
+    """
+    env_overrides = dict(env_overrides or {})
+    task_ids = [resolve_task(t) for t in tasks] if tasks else tagged(DEFAULT_TAG)
+    if not task_ids:
+        raise ValueError(f"no task is tagged {DEFAULT_TAG!r}: pass --tasks")
+    _no_duplicates("task", task_ids)
+    for t in task_ids:
+        if not report_times(t, env_overrides):
+            mission = task_config(t, env_overrides).mission
+            raise ValueError(f"task {t}: no report time {mission.report_times} lies within the budget "
+                             f"of {mission.budget_s} s; lower report_times or raise budget_s")
+    if episodes is not None and (isinstance(episodes, bool) or int(episodes) < 1):
+        raise ValueError(f"episodes = {episodes} is invalid: expected an integer >= 1")
+    specs = list(planners) if planners else default_planners(log)
+    if not specs:
+        raise ValueError("no planner can be built: pass --planners")
+    resolved, fingerprints, quick_changed = [], {}, quick and episodes is None
+    for spec in specs:
+        name = parse_spec(spec)[0]
+        extra = QUICK_OVERRIDES.get(name, {}) if quick else {}
+        canon = canonical_spec(spec, extra)
+        quick_changed = quick_changed or canon != canonical_spec(spec)
+        # a planner must build here, or fail now, loudly (the default list holds buildable ones)
+        fingerprint = planner_fingerprint(make_planner(canon))
+        if fingerprint:
+            fingerprints[canon] = fingerprint
+        resolved.append(canon)
+    _no_duplicates("planner", resolved)
+    if episodes is None:
+        episodes = QUICK_EPISODES if quick else DEFAULT_EPISODES
+    seeds = episode_seeds(seed, episodes)
+    return Plan(tuple(task_ids), tuple(resolved), int(episodes), int(seed), tuple(seeds), env_overrides,
+                quick_changed, fingerprints)
+
+
+def _no_duplicates(kind: str, items: Sequence[str]) -> None:
+    seen = set()
+    for item in items:
+        if item in seen:
+            raise ValueError(f"{kind} {item!r} is given twice")
+        seen.add(item)
+
+
+def describe_quick() -> str:
+    """What ``--quick`` changes, for the log."""
+    overrides = ", ".join(f"{name}:" + ",".join(f"{k}={v}" for k, v in o.items())
+                          for name, o in QUICK_OVERRIDES.items())
+    return (f"quick mode: {QUICK_EPISODES} episodes per task and planner (instead of {DEFAULT_EPISODES}), "
+            f"planner overrides {overrides} (unless a --planners spec sets them)")
+
+
+__all__ = ["DEFAULT_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES", "EpisodeJob", "Plan", "canonical_spec",
+           "default_planners", "describe_quick", "episode_seeds", "make_plan", "planner_fingerprint",
+           "report_times", "resolve_task"]

@@ -1,0 +1,338 @@
+"""The results folder of a leaderboard run: its fingerprint, its lock and a resumable results.csv.
+
+The folder holds:
+
+``run.json``
+    the fingerprint of the arguments that decide the numbers (tasks and their configs, planner
+    specs and what their decisions depend on, e.g. the attention checkpoint's content hash, the
+    seed, environment overrides; :meth:`Plan.fingerprint`). A rerun with other arguments is
+    refused, naming what differs; a rerun with more episodes extends the folder (seeds are
+    prefix-stable). The executor (backend, workers) is not part of it: results do not depend on it.
+``results.csv``
+    long format, one row per (task, planner, seed, report time) with :data:`COLUMNS`. An episode's
+    rows are appended in one write, flushed and fsync'ed as soon as it finishes, so a killed run
+    loses no finished episode. On resume a torn last line (the write a kill interrupted) and
+    episodes with missing rows are dropped and run again. When every episode is in, the file is
+    rewritten sorted (task, planner, seed, time), so its content does not depend on the order in
+    which workers finished.
+
+Opening the store (a context manager) only reads and locks; nothing is written until
+:meth:`ResultsStore.begin`, so a run that fails before its first episode (no Ray cluster, say)
+leaves no ``run.json`` behind.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import shutil
+import time
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from .. import __version__
+from ..data import check_output_dir
+from ..mission import REPORT_KEYS
+from .plan import Plan, report_times
+
+RESULTS_CSV = "results.csv"
+RUN_JSON = "run.json"
+LOCK_FILE = ".lock"
+FORMAT_VERSION = 1
+#: fingerprint keys that older folders lack: filled in (with a note) instead of refusing the folder
+ADDED_FINGERPRINT_KEYS = ("planner_fingerprints",)
+
+KEY_COLUMNS = ("task", "planner", "seed")
+TIMING_COLUMNS = ("decision_time_mean_s", "decision_time_max_s", "episode_wall_s")
+COLUMNS = (*KEY_COLUMNS, "time_s", *REPORT_KEYS, "decisions", *TIMING_COLUMNS)
+_INT_COLUMNS = ("seed", "decisions")
+_FLOAT_COLUMNS = tuple(c for c in COLUMNS if c not in KEY_COLUMNS + _INT_COLUMNS or c == "time_s")
+
+
+class ResultsMismatchError(ValueError):
+    """``out_dir`` holds results made with other arguments, or cannot be used."""
+
+
+def _format_cell(value: Any) -> str:
+    if isinstance(value, float):
+        return repr(value)  # shortest round-trip form: the same number reads back bit for bit
+    return str(value)
+
+
+def format_header() -> str:
+    return ",".join(COLUMNS) + "\n"
+
+
+def format_rows(rows: Iterable[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    for row in rows:
+        writer.writerow([_format_cell(row[c]) for c in COLUMNS])
+    return buf.getvalue()
+
+
+def _parse_row(fields: list[str]) -> dict[str, Any]:
+    if len(fields) != len(COLUMNS):
+        raise ValueError(f"{len(fields)} fields, expected {len(COLUMNS)}")
+    row: dict[str, Any] = dict(zip(COLUMNS, fields))
+    for c in _INT_COLUMNS:
+        row[c] = int(row[c])
+    for c in _FLOAT_COLUMNS:
+        row[c] = float(row[c])
+    return row
+
+
+def read_results(path: str | Path) -> list[dict[str, Any]]:
+    """The rows of a results.csv (typed); a torn last line is ignored."""
+    return _parse_text(Path(path).read_text())[0]
+
+
+def _parse_text(text: str) -> tuple[list[dict[str, Any]], list[str]]:
+    """Rows of a results.csv text, and notes on what was dropped (torn or malformed lines)."""
+    notes = []
+    if text and not text.endswith("\n"):
+        cut = text.rfind("\n") + 1
+        notes.append(f"dropped a torn last line ({len(text) - cut} bytes, from an interrupted write)")
+        text = text[:cut]
+    lines = text.splitlines()
+    if not lines:
+        return [], notes
+    header = next(csv.reader([lines[0]]))
+    if tuple(header) != COLUMNS:
+        raise ValueError(f"results.csv has columns {header}, expected {list(COLUMNS)}")
+    rows = []
+    for i, fields in enumerate(csv.reader(lines[1:]), start=2):
+        try:
+            rows.append(_parse_row(fields))
+        except ValueError as err:
+            notes.append(f"dropped malformed line {i} ({err})")
+    return rows, notes
+
+
+def _sort_key(plan: Plan):
+    t_index = {t: i for i, t in enumerate(plan.tasks)}
+    p_index = {p: i for i, p in enumerate(plan.planners)}
+    s_index = {s: i for i, s in enumerate(plan.seeds)}
+    return lambda r: (t_index.get(r["task"], 1 << 30), p_index.get(r["planner"], 1 << 30),
+                      s_index.get(r["seed"], 1 << 30), r["time_s"])
+
+
+class ResultsStore:
+    """``out_dir`` of a leaderboard run: fingerprint check, lock, resumable results.csv.
+
+    Use as a context manager; entering locks the folder against a second concurrent run and
+    reads it; :meth:`begin` writes run.json and the cleaned results.csv.
+    """
+
+    def __init__(self, out_dir: str | Path, plan: Plan, command: str | None = None):
+        self.dir = Path(out_dir)
+        self.plan = plan
+        self.command = command
+        self.csv_path = self.dir / RESULTS_CSV
+        self.run_json = self.dir / RUN_JSON
+        self._lock_fd: int | None = None
+        self._created = False
+        self._meta: dict[str, Any] | None = None  # run.json to write at begin(), None: keep
+        self._rewrite_rows: list[dict[str, Any]] | None = None  # results.csv to write at begin()
+        self.notes: list[str] = []
+        self.done: dict[tuple[str, str, int], list[dict[str, Any]]] = {}
+
+    # -- setup ----------------------------------------------------------------------------------------
+    def __enter__(self) -> ResultsStore:
+        try:
+            check_output_dir(self.dir)
+        except ValueError as err:
+            raise ResultsMismatchError(str(err)) from None
+        self._created = not self.dir.exists()
+        self.dir.mkdir(parents=True, exist_ok=True)
+        try:
+            self._lock()
+            self._check_fingerprint()
+            self._load()
+        except BaseException:
+            self._close(failed=True)
+            raise
+        return self
+
+    def __exit__(self, exc_type, *exc) -> None:
+        self._close(failed=exc_type is not None)
+
+    def _close(self, failed: bool) -> None:
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)  # releases the flock
+            self._lock_fd = None
+        if failed and self._created and not self.run_json.exists():  # leave nothing behind
+            shutil.rmtree(self.dir, ignore_errors=True)
+
+    def _lock(self) -> None:
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover (Windows): no lock
+            return
+        fd = os.open(self.dir / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise ResultsMismatchError(
+                f"{self.dir} is in use by another leaderboard run (locked); wait for it or pass another --out") from None
+        self._lock_fd = fd
+
+    def _new_meta(self, created: str | None = None) -> dict[str, Any]:
+        return {
+            "format": FORMAT_VERSION,
+            "fingerprint": self.plan.fingerprint(),
+            "quick": self.plan.quick,
+            "tasks": list(self.plan.tasks),
+            "planners": list(self.plan.planners),
+            "episodes": self.plan.episodes,
+            "seeds": list(self.plan.seeds),
+            "ipp_bench_version": __version__,
+            "command": self.command,
+            "created": created or time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        }
+
+    def _check_fingerprint(self) -> None:
+        fingerprint = self.plan.fingerprint()
+        if not self.run_json.exists():
+            if self.csv_path.exists() and self.csv_path.stat().st_size > 0:
+                raise ResultsMismatchError(
+                    f"{self.csv_path} exists without {RUN_JSON}: its arguments are unknown, so it cannot be "
+                    f"resumed; pass a new --out DIR (or delete {self.dir})")
+            self._meta = self._new_meta()
+            return
+        try:
+            stored_meta = json.loads(self.run_json.read_text())
+            stored = dict(stored_meta["fingerprint"])
+        except (ValueError, KeyError, TypeError) as err:
+            raise ResultsMismatchError(
+                f"{self.run_json} is unreadable ({err}); pass a new --out DIR (or delete {self.dir})") from None
+        stored_episodes = stored.pop("episodes", None) or stored_meta.get("episodes") or len(stored_meta.get("seeds", []))
+        added = [k for k in ADDED_FINGERPRINT_KEYS if k not in stored]
+        for k in added:
+            stored[k] = fingerprint[k]
+        differing = [k for k in sorted(set(stored) | set(fingerprint)) if stored.get(k) != fingerprint.get(k)]
+        if differing:
+            lines = [f"  {k}: there {_short(stored.get(k))}, now {_short(fingerprint.get(k))}" for k in differing]
+            raise ResultsMismatchError(
+                f"{self.dir} holds results made with different arguments ({', '.join(differing)}):\n"
+                + "\n".join(lines)
+                + f"\nTo resume that run, repeat its arguments ({RUN_JSON} has them); for these arguments "
+                f"pass a new --out DIR (or delete {self.dir}). Results of different arguments are never mixed.")
+        if stored_episodes and self.plan.episodes < int(stored_episodes):
+            raise ResultsMismatchError(
+                f"{self.dir} holds {stored_episodes} episodes per task and planner; --episodes {self.plan.episodes} "
+                f"would drop some: pass --episodes {stored_episodes} or more (more episodes extend the folder)")
+        if added:
+            self.notes.append(f"{RUN_JSON} predates {', '.join(added)}; recorded them now")
+        if added or self.plan.episodes != stored_episodes or "episodes" in stored_meta.get("fingerprint", {}):
+            if self.plan.episodes != stored_episodes:
+                self.notes.append(f"extending {self.dir} from {stored_episodes} to {self.plan.episodes} episodes "
+                                  "per task and planner (the first seeds are the same)")
+            meta = self._new_meta(stored_meta.get("created"))
+            meta["quick"] = bool(stored_meta.get("quick", self.plan.quick))  # the label stays the folder's
+            meta["command"] = self.command or stored_meta.get("command")
+            self._meta = meta
+
+    def _load(self) -> None:
+        """Read finished episodes; note torn lines and incomplete episodes (dropped at begin())."""
+        if not self.csv_path.exists() or self.csv_path.stat().st_size == 0:
+            self._rewrite_rows = []
+            return
+        text = self.csv_path.read_text()
+        try:
+            rows, notes = _parse_text(text)
+        except ValueError as err:  # another header: not a results file of this version
+            raise ResultsMismatchError(f"{self.csv_path}: {err}; pass a new --out DIR (or delete {self.dir})") from None
+        expected = {t: report_times(t, self.plan.env_overrides) for t in self.plan.tasks}
+        wanted = {job.key for job in self.plan.jobs()}
+        groups: dict[tuple[str, str, int], dict[float, dict[str, Any]]] = {}
+        for row in rows:
+            key = (row["task"], row["planner"], row["seed"])
+            groups.setdefault(key, {}).setdefault(row["time_s"], row)  # a duplicate row: keep the first
+        done = {}
+        for key, by_time in groups.items():
+            if key not in wanted:
+                notes.append(f"dropped rows of {key}: not an episode of these arguments")
+                continue
+            if tuple(sorted(by_time)) != expected[key[0]]:
+                notes.append(f"dropped the incomplete episode {key} ({len(by_time)} of {len(expected[key[0]])} rows); "
+                             "it runs again")
+                continue
+            done[key] = [by_time[t] for t in expected[key[0]]]
+        kept = sum(len(v) for v in done.values())
+        if kept != len(rows) or not text.endswith("\n") or notes:
+            self._rewrite_rows = [r for v in done.values() for r in v]
+        self.notes.extend(notes)
+        self.done = done
+
+    # -- writing --------------------------------------------------------------------------------------
+    def begin(self) -> None:
+        """Write what opening decided: run.json (new, extended or upgraded) and a clean results.csv."""
+        if self._meta is not None:
+            _atomic_write(self.run_json, json.dumps(self._meta, indent=2) + "\n")
+            self._meta = None
+        if self._rewrite_rows is not None:
+            _atomic_write(self.csv_path, format_header() + format_rows(self._rewrite_rows))
+            self._rewrite_rows = None
+
+    def append(self, rows: list[dict[str, Any]]) -> None:
+        """Append one episode's rows: one write of whole lines, flushed and fsync'ed."""
+        data = format_rows(rows).encode()
+        fd = os.open(self.csv_path, os.O_WRONLY | os.O_APPEND)
+        try:
+            view = memoryview(data)
+            while view:
+                n = os.write(fd, view)
+                view = view[n:]
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        key = (rows[0]["task"], rows[0]["planner"], rows[0]["seed"])
+        self.done[key] = rows
+
+    def finalize(self) -> None:
+        """Rewrite results.csv sorted by (task, planner, seed, time): independent of finishing order."""
+        rows = sorted((r for v in self.done.values() for r in v), key=_sort_key(self.plan))
+        _atomic_write(self.csv_path, format_header() + format_rows(rows))
+
+    @property
+    def quick(self) -> bool:
+        """Whether the report is a quick run's: the stored label, and this run's."""
+        if self.run_json.exists():
+            try:
+                return bool(json.loads(self.run_json.read_text()).get("quick", False))
+            except ValueError:
+                pass
+        return self.plan.quick
+
+
+def _short(value: Any, limit: int = 200) -> str:
+    text = json.dumps(value, sort_keys=True, default=str)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "w") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    try:  # make the rename itself durable
+        dfd = os.open(path.parent, os.O_RDONLY)
+    except OSError:  # pragma: no cover
+        return
+    try:
+        os.fsync(dfd)
+    except OSError:  # pragma: no cover (file systems that refuse fsync on a folder)
+        pass
+    finally:
+        os.close(dfd)
+
+
+__all__ = ["COLUMNS", "RESULTS_CSV", "RUN_JSON", "TIMING_COLUMNS", "ResultsMismatchError", "ResultsStore",
+           "format_header", "format_rows", "read_results"]

@@ -1,0 +1,271 @@
+"""Bad input and faults, tried as a new user would, through the public entry points.
+
+Each case drives ``gym.make`` or the command line's ``main([...])`` and checks that the message
+names what was wrong (and, for the command line, that no traceback is printed and nothing is left
+half-done). The cases follow the list of issue 10.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import ipp_bench.envs  # noqa: F401  (registers the tasks)
+from ipp_bench.cli import main
+
+TASK = "ipp_bench/Grid15Eval-v0"
+TINY = ["--env", "budget_s=40", "--env", "report_times=[20,40]"]
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _cli(argv, capsys):
+    """(exit status, stdout, stderr) of ``ipp-bench ARGV``."""
+    rc = main(argv)
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def _lb(out, *extra):
+    return ["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random", "--episodes", "1",
+            "--backend", "serial", "--no-progress", "--out", str(out), *TINY, *extra]
+
+
+# -- configuration and environment ------------------------------------------------------------------
+def test_numbers_of_any_numeric_type_are_accepted():
+    env = gym.make(TASK, rows=np.int64(20), budget_s=np.float32(60.0)).unwrapped
+    env.reset(seed=0)
+    assert env.config.grid.rows == 20 and type(env.config.grid.rows) is int
+
+
+@pytest.mark.parametrize("override, field", [
+    ({"budget_s": "100"}, "budget_s"), ({"resolution": "2.5"}, "resolution"), ({"rows": "20"}, "rows"),
+    ({"budget_s": True}, "budget_s"), ({"mu_th": 0.9}, "mu_th"), ({"mu_th": -1.0}, "mu_th"),
+], ids=["budget-string", "resolution-string", "rows-string", "budget-bool", "mu_th-high", "mu_th-negative"])
+def test_bad_values_are_refused_at_make_naming_the_field(override, field):
+    with pytest.raises(ValueError, match=rf"mission\.{field}|grid\.{field}") as err:
+        gym.make(TASK, **override)
+    assert "expected" in str(err.value)
+
+
+def test_a_budget_too_small_for_any_first_move_is_refused_at_reset():
+    env = gym.make(TASK, budget_s=1.0, report_times=[1.0])
+    with pytest.raises(ValueError, match=r"budget_s = 1.0 is too small.*cheapest takes 1.25 s"):
+        env.reset(seed=0)
+
+
+def test_step_after_the_end_says_call_reset():
+    env = gym.make(TASK, budget_s=3.0, report_times=[3.0])
+    obs, _ = env.reset(seed=0)
+    terminated = False
+    while not terminated:
+        obs, _, terminated, _, _ = env.step(int(np.flatnonzero(obs["action_mask"])[0]))
+    with pytest.raises(RuntimeError, match=r"the episode is over .*call reset\(\)"):
+        env.step(0)
+
+
+def test_human_render_mode_names_the_supported_modes():
+    with pytest.raises(ValueError, match=r"render_mode='human' is invalid: valid are \['rgb_array'\]"):
+        gym.make(TASK, render_mode="human")
+
+
+# -- command line -----------------------------------------------------------------------------------
+def test_evaluate_with_a_string_override_names_the_field(capsys):
+    rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", "--env", "budget_s=abc"], capsys)
+    assert rc == 2 and "mission.budget_s = 'abc' is invalid" in err and "Traceback" not in err
+
+
+def test_evaluate_with_a_budget_too_small_is_one_line(capsys):
+    rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", "--env", "budget_s=1",
+                       "--env", "report_times=[1]"], capsys)
+    assert rc == 2 and "budget_s = 1 is too small" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", "--seed", "-1"], "--seed -1 is invalid"),
+    (["leaderboard", "--planners", "random", "--seed", "-3"], "seed = -3 is invalid"),
+], ids=["evaluate", "leaderboard"])
+def test_negative_seeds_are_refused(argv, message, capsys, tmp_path):
+    rc, _, err = _cli([*argv, *(["--out", str(tmp_path / "o")] if argv[0] == "leaderboard" else [])], capsys)
+    assert rc == 2 and message in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_out_under_a_file_is_refused_before_any_episode(capsys, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    rc, out, err = _cli(_lb(blocker / "lb"), capsys)
+    assert rc == 2 and f"{blocker} is a file, not a folder" in err and "[1/1]" not in out
+
+
+@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_out_is_refused_before_any_episode(capsys, tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        rc, out, err = _cli(_lb(ro / "lb"), capsys)
+    finally:
+        ro.chmod(0o700)
+    assert rc == 2 and "is not writable" in err and "[1/1]" not in out
+
+
+@pytest.mark.parametrize("render, message", [("final.gif", "expected a .png file"),
+                                             ("file/final.png", "is a file, not a folder")], ids=["suffix", "under-file"])
+def test_render_path_is_checked_before_the_episode(render, message, capsys, tmp_path):
+    (tmp_path / "file").write_text("x")
+    rc, out, err = _cli(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", "--render",
+                         str(tmp_path / render), *TINY], capsys)
+    assert rc == 2 and message in err and "decisions" not in out
+
+
+def test_demo_paths_are_checked_before_the_episode(capsys, tmp_path):
+    pytest.importorskip("mujoco")
+    (tmp_path / "file").write_text("x")
+    for bad in (["--out", str(tmp_path / "file" / "d.mp4")],
+                ["--out", str(tmp_path / "d.mp4"), "--compare", "random", "--compare-out", str(tmp_path / "file" / "c.png")]):
+        rc, out, err = _cli(["demo", "--planner", "random", "--budget", "4", "--no-progress", *bad], capsys)
+        assert rc == 2 and "is a file, not a folder" in err and "frames" not in out
+        assert not (tmp_path / "d.mp4").exists()
+
+
+def test_ctrl_c_prints_one_line_keeps_the_episodes_and_exits_130(capsys, tmp_path, monkeypatch):
+    import ipp_bench.eval.leaderboard as lb
+
+    real, calls = lb.run_job, []
+
+    def interrupted_after_two(job):
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        calls.append(job)
+        return real(job)
+
+    monkeypatch.setattr(lb, "run_job", interrupted_after_two)
+    out = tmp_path / "lb"
+    rc, _, err = _cli(_lb(out, "--episodes", "4"), capsys)
+    assert rc == 130
+    assert err.strip() == f"ipp-bench: interrupted; 2 of 4 episodes kept in {out}; rerun the same command to resume"
+    monkeypatch.setattr(lb, "run_job", real)
+    rc, stdout, _ = _cli(_lb(out, "--episodes", "4"), capsys)
+    assert rc == 0 and "2 already in" in stdout
+
+
+def _descendants_alive(pgid: int) -> list[int]:
+    """Pids of live (not zombie) processes in process group ``pgid``."""
+    alive = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()
+        if fields[0] != "Z" and int(fields[2]) == pgid:
+            alive.append(int(entry.name))
+    return alive
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc (Linux)")
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_sigterm_leaves_no_child_behind_and_a_rerun_completes(tmp_path, sig):
+    """SIGTERM stops the run like Ctrl-C; after SIGKILL (no cleanup at all) the workers notice
+    that the run is gone and exit by themselves."""
+    out = tmp_path / "lb"
+    argv = [sys.executable, "-m", "ipp_bench.cli", "leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random",
+            "greedy", "--episodes", "6", "--backend", "process", "--workers", "2", "--no-progress", "--out", str(out),
+            "--env", "budget_s=60", "--env", "report_times=[30,60]"]
+    proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        csv_path = out / "results.csv"
+        while time.monotonic() < deadline:  # wait for the pool to run (one episode written)
+            if csv_path.exists() and len(csv_path.read_text().splitlines()) > 1:
+                break
+            assert proc.poll() is None, proc.stdout.read()
+            time.sleep(0.2)
+        assert len(_descendants_alive(proc.pid)) >= 3  # the run, its workers (and their forkserver)
+        os.kill(proc.pid, sig)
+        proc.wait(timeout=60)
+        deadline = time.monotonic() + 30
+        while _descendants_alive(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert _descendants_alive(proc.pid) == [], "a worker outlived the leaderboard"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    output = proc.stdout.read()
+    assert "Traceback" not in output
+    if sig == signal.SIGTERM:
+        assert "episodes kept in" in output
+    rerun = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=180)
+    assert rerun.returncode == 0, rerun.stderr[-2000:]
+    assert "already in" in rerun.stdout and len((out / "results.csv").read_text().splitlines()) == 1 + 2 * 6 * 2
+
+
+def test_ray_address_without_a_cluster_is_one_line_and_leaves_no_run_json(capsys, tmp_path, monkeypatch):
+    pytest.importorskip("ray")
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    out = tmp_path / "lb"
+    rc, _, err = _cli(["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random", "--episodes", "1",
+                       "--backend", "ray", "--address", "auto", "--no-progress", "--out", str(out), *TINY], capsys)
+    assert rc == 2 and "no Ray cluster found at 'auto'" in err and "ray start --head" in err
+    assert len(err.strip().splitlines()) == 1 and not (out / "run.json").exists()
+
+
+def test_a_replaced_checkpoint_is_refused_like_any_other_change(capsys, tmp_path):
+    pytest.importorskip("torch")
+    from ipp_bench.policies.checkpoint import SHIPPED_CHECKPOINT, load_checkpoint, save_checkpoint
+
+    ckpt = tmp_path / "net.pt"
+    net, meta = load_checkpoint(SHIPPED_CHECKPOINT)
+    save_checkpoint(net, ckpt, meta)
+    argv = ["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", f"attention:checkpoint={ckpt}", "--episodes",
+            "1", "--backend", "serial", "--no-progress", "--out", str(tmp_path / "lb"), *TINY]
+    assert _cli(argv, capsys)[0] == 0
+    import torch
+
+    with torch.no_grad():
+        next(net.parameters()).add_(0.01)  # another network under the same file name
+    save_checkpoint(net, ckpt, meta)
+    rc, _, err = _cli(argv, capsys)
+    assert rc == 2 and "planner_fingerprints" in err and "checkpoint_sha256" in err
+
+
+def test_a_no_op_quick_does_not_relabel_the_report(capsys, tmp_path):
+    out = tmp_path / "lb"
+    assert _cli(_lb(out), capsys)[0] == 0
+    assert _cli(_lb(out, "--quick"), capsys)[0] == 0  # random has no quick settings, episodes are explicit
+    assert "quick mode" not in (out / "leaderboard.md").read_text()
+    assert json.loads((out / "run.json").read_text())["quick"] is False
+
+
+def test_core_only_install_runs_the_default_leaderboard_and_names_the_extras(capsys, tmp_path, monkeypatch):
+    for module in ("matplotlib", "cma", "torch", "tqdm"):  # as after pip install ipp-bench (no extras)
+        monkeypatch.setitem(sys.modules, module, None)
+    out = tmp_path / "lb"
+    rc, stdout, err = _cli(["leaderboard", "--tasks", "Grid15Eval-v0", "--episodes", "1", "--backend", "serial",
+                            "--out", str(out), *TINY], capsys)
+    assert rc == 0, err
+    assert "leaving planner 'cmaes' out" in stdout and "ipp-bench[eval]" in stdout
+    assert "leaving planner 'attention' out" in stdout and "ipp-bench[train]" in stdout
+    assert (out / "leaderboard.md").exists() and not list(out.glob("*.png"))
+    assert "the plots need matplotlib" in (out / "leaderboard.md").read_text()
+
+
+def test_planners_in_comma_form_work(capsys, tmp_path):
+    rc, stdout, _ = _cli(["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random,coverage",
+                          "mcts:simulations=2,exploration=0.5,greedy", "--episodes", "1", "--backend", "serial",
+                          "--no-progress", "--out", str(tmp_path / "lb"), *TINY], capsys)
+    assert rc == 0
+    assert "planners: random, coverage, mcts:exploration=0.5,simulations=2, greedy" in stdout

@@ -24,6 +24,7 @@ from ..envs import short_task_id
 from .executors import default_backend, make_executor
 from .plan import (
     DEFAULT_EPISODES,
+    LEADERBOARD_DEFAULTS,
     QUICK_EPISODES,
     QUICK_OVERRIDES,
     EpisodeJob,
@@ -194,6 +195,7 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
 __all__ = [
     "COLUMNS",
     "DEFAULT_EPISODES",
+    "LEADERBOARD_DEFAULTS",
     "QUICK_EPISODES",
     "QUICK_OVERRIDES",
     "RESULTS_CSV",

@@ -2,13 +2,12 @@
 
 The loop itself is :func:`ipp_bench.planners.episode.fly_episode`, shared with the MuJoCo demo
 and the training code's validation; this module adds what the command line needs around it:
-making the task's env and saving the final render.
+making the task's env and saving the episode's figure.
 """
 
 from __future__ import annotations
 
 import gymnasium as gym
-import numpy as np
 
 import ipp_bench.envs  # noqa: F401  (registers the tasks)
 
@@ -25,24 +24,18 @@ def run_episode(task: str, planner: str, seed: int, env=None, render_path: str |
     """Fly one episode of ``planner`` (a spec such as ``"mcts:simulations=50"``) on ``task``.
 
     The episode seed fixes field, start and sensor noise, so every planner meets the same episode.
-    ``env`` reuses an environment of ``task``; ``render_path`` saves the final render as a PNG;
+    ``env`` reuses an environment of ``task``; ``render_path`` saves the episode's figure as a PNG
+    (:func:`~ipp_bench.eval.figure.save_episode_figure`);
     ``on_reset`` and ``on_decision`` are the hooks of :func:`~ipp_bench.planners.episode.fly_episode`.
     """
-    env = env if env is not None else make_env(task, render=render_path is not None, **env_overrides)
+    env = env if env is not None else make_env(task, **env_overrides)
     result = fly_episode(env, planner, seed, on_reset=on_reset, on_decision=on_decision)
     result.task = task
     if render_path is not None:
-        save_png(env.render(), render_path)
+        from .figure import save_episode_figure
+
+        save_episode_figure(env.mission, render_path, f"{task}, {planner}, seed {seed}")
     return result
 
 
-def save_png(image: np.ndarray, path: str) -> None:
-    """Write an RGB uint8 image as PNG (matplotlib's writer; part of the ``eval`` extra)."""
-    try:
-        import matplotlib.image as mpimg
-    except ImportError:
-        raise ImportError('saving a PNG needs matplotlib: pip install "ipp-bench[eval]"') from None
-    mpimg.imsave(path, image)
-
-
-__all__ = ["Decision", "EpisodeResult", "make_env", "run_episode", "save_png"]
+__all__ = ["Decision", "EpisodeResult", "make_env", "run_episode"]

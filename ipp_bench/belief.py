@@ -13,6 +13,8 @@ import numpy as np
 from scipy.linalg import blas, cho_solve, solve_triangular
 from scipy.spatial.distance import cdist
 
+from .config import cell_centre
+
 
 def matern32(dist: np.ndarray, length_scale: float, signal_variance: float) -> np.ndarray:
     """Matern nu = 3/2 kernel of distances ``dist`` [m]."""
@@ -24,7 +26,7 @@ def cell_centres(shape: tuple[int, int], resolution: float) -> np.ndarray:
     """(rows*cols, 2) cell centres (x, y) [m] in row-major order."""
     rows, cols = shape
     r, c = np.divmod(np.arange(rows * cols), cols)
-    return np.stack([(c + 0.5) * resolution, (r + 0.5) * resolution], axis=1).astype(np.float64)
+    return np.stack([cell_centre(c, resolution), cell_centre(r, resolution)], axis=1).astype(np.float64)
 
 
 def prior_covariance(xy: np.ndarray, length_scale: float, signal_variance: float,

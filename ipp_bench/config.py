@@ -25,6 +25,12 @@ SAMPLING_MODES = ("grid", "uniform")
 FIELD_GUARANTEED_MAX = 0.5
 
 
+def cell_centre(index: Any, resolution: float) -> Any:
+    """[m] coordinate of the centre of cell ``index`` along one axis (elementwise on index arrays):
+    the one cell-centre formula of the suite."""
+    return (index + 0.5) * resolution
+
+
 def _fail(section: str, name: str, value: Any, valid: str) -> None:
     raise ValueError(f"{section}.{name} = {value!r} is invalid: expected {valid}")
 

@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from .config import FIELD_FAMILIES, GridConfig
+from .config import FIELD_FAMILIES, GridConfig, cell_centre
 
 
 def bernoulli(grid: GridConfig, rng: np.random.Generator) -> np.ndarray:
@@ -51,8 +51,8 @@ def regions(grid: GridConfig, rng: np.random.Generator) -> np.ndarray:
 def weed_patches(grid: GridConfig, rng: np.random.Generator) -> np.ndarray:
     """Weed density: 3-6 elliptic Gaussian patches (radius 2-5 m, peak 0.6-1) over sparse weeds."""
     width, height = grid.size_m
-    x = (np.arange(grid.cols) + 0.5) * grid.resolution
-    y = (np.arange(grid.rows) + 0.5) * grid.resolution
+    x = cell_centre(np.arange(grid.cols), grid.resolution)
+    y = cell_centre(np.arange(grid.rows), grid.resolution)
     X, Y = np.meshgrid(x, y)
     field = np.zeros((grid.rows, grid.cols))
     for _ in range(int(rng.integers(3, 7))):

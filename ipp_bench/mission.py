@@ -22,7 +22,7 @@ import numpy as np
 
 from . import metrics as M
 from .belief import GPBelief
-from .config import TIME_TOL_S, IPPConfig
+from .config import TIME_TOL_S, IPPConfig, cell_centre
 from .sensor import Observation, Sensor, stack
 
 #: the metrics an episode reports at each report time (:meth:`Mission.metrics_at`)
@@ -48,7 +48,7 @@ class MetricRecord:
 
 
 @dataclass(frozen=True)
-class Leg:
+class FlownLeg:
     """What one ``fly_to`` did."""
 
     duration_s: float
@@ -88,7 +88,7 @@ def fits_budget(duration_s, remaining_s):
 def cell_to_xyz(config: IPPConfig, col: float, row: float, altitude: float) -> np.ndarray:
     """Position [m] above the centre of cell (col, row) at ``altitude``."""
     res = config.grid.resolution
-    return np.array([(col + 0.5) * res, (row + 0.5) * res, altitude], dtype=np.float64)
+    return np.array([cell_centre(col, res), cell_centre(row, res), altitude], dtype=np.float64)
 
 
 class Mission:
@@ -179,7 +179,7 @@ class Mission:
                 f"{self.budget_s:.0f} s budget remain")
         return target, dist
 
-    def fly_to(self, xyz) -> Leg:
+    def fly_to(self, xyz) -> FlownLeg:
         """Fly straight to ``xyz`` [m], measuring along the way and on arrival.
 
         Raises:
@@ -199,7 +199,7 @@ class Mission:
         self._since_measurement = 0.0
         self.path.append((self.time_s, *target))
         n = self._measure(points, times)
-        return Leg(duration, dist, n, self.time_s)
+        return FlownLeg(duration, dist, n, self.time_s)
 
     def _measure(self, points, times) -> int:
         """Read the camera at ``points`` (times ``times``) and fuse the read-outs.

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.linalg import eigh
 from scipy.spatial import cKDTree
 
+from .belief import cell_centres
 from .config import GraphConfig, GridConfig
 
 _CACHE: dict[tuple, "Roadmap"] = {}
@@ -78,8 +79,7 @@ def _sample_nodes(grid: GridConfig, graph: GraphConfig) -> tuple[np.ndarray, np.
     width, height = grid.size_m
     parts, levels = [], []
     if graph.sampling == "grid":
-        r, c = np.divmod(np.arange(grid.n_cells), grid.cols)
-        xy = np.stack([(c + 0.5) * grid.resolution, (r + 0.5) * grid.resolution], axis=1)
+        xy = cell_centres((grid.rows, grid.cols), grid.resolution)
         per_level = [xy] * len(graph.altitudes)
     else:
         rng = np.random.default_rng(graph.roadmap_seed)

@@ -16,7 +16,7 @@ from ..fields import make_field
 from ..mission import Mission, cell_to_xyz
 from ..roadmap import Roadmap
 from ..sensor import Sensor
-from .render import render_mission
+from .panels import render_mission
 
 
 class GraphIPPEnv(gym.Env):

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import cell_centre
+
 
 def save_episode_figure(mission, path: str | Path, title: str = "") -> Path:
     """Write the figure of ``mission`` (after its episode) to ``path`` (PNG)."""
@@ -45,7 +47,7 @@ def save_episode_figure(mission, path: str | Path, title: str = "") -> Path:
         ax.set_ylabel("y [m]")
         fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, label=label)
     res = g.resolution
-    xs, ys = (np.arange(g.cols) + 0.5) * res, (np.arange(g.rows) + 0.5) * res
+    xs, ys = cell_centre(np.arange(g.cols), res), cell_centre(np.arange(g.rows), res)
     axes[0].contour(xs, ys, mission.truth >= cfg.mission.mu_th, levels=[0.5], colors="white", linewidths=1.2)
     way = np.asarray(mission.path, dtype=float)  # (t, x, y, z) per waypoint
     ax = axes[2]

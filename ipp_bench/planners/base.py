@@ -24,6 +24,12 @@ from ..roadmap import Roadmap
 from ..sensor import Observation, Sensor, stack
 
 
+def softmax(logits: np.ndarray) -> np.ndarray:
+    """Probabilities ``exp(l - max l) / sum``; ``-inf`` logits get probability 0."""
+    p = np.exp(logits - logits.max())
+    return p / p.sum()
+
+
 #: [m] with less flight than this left, a continuous mission is over (no leg worth flying)
 MIN_FLIGHT_M = 0.5
 #: [m] legs shorter than this are no legs (the mission refuses them as "already there")
@@ -144,13 +150,17 @@ class Planner(Protocol):
 
 
 class _PlannerBase:
-    """Config, view and a per-episode random generator (seeded by ``reset``)."""
+    """Settings, view and a per-episode random generator (seeded by ``reset``).
+
+    ``settings`` is the planner's own ``Config`` dataclass (``mcts:simulations=50``); the task's
+    configuration is ``view.config`` (an :class:`~ipp_bench.config.IPPConfig`): two names, two things.
+    """
 
     name: ClassVar[str] = "base"
     kind: ClassVar[str] = "base"
 
-    def __init__(self, config: Any = None):
-        self.config = config
+    def __init__(self, settings: Any = None):
+        self.settings = settings
         self.view: RobotView | None = None
         self.rng = np.random.default_rng(0)
 

@@ -77,9 +77,9 @@ class CMAESPlanner(ContinuousPlanner):
         here = self.view.position
         d = pts[0] - here
         dist = float(np.linalg.norm(d))
-        if dist < self.config.min_leg_m:  # stretch a too-short first leg (inside the box)
+        if dist < self.settings.min_leg_m:  # stretch a too-short first leg (inside the box)
             direction = d / dist if dist > 1e-9 else np.array([1.0, 0.0, 0.0])
-            pts[0] = np.clip(here + direction * self.config.min_leg_m, self._lo, self._hi)
+            pts[0] = np.clip(here + direction * self.settings.min_leg_m, self._lo, self._hi)
         return pts
 
     def _path(self, pts: np.ndarray) -> tuple[list, float]:
@@ -118,7 +118,7 @@ class CMAESPlanner(ContinuousPlanner):
         import cma
 
         view = self.view
-        cfg = self.config
+        cfg = self.settings
         if self.flight_left_m() < MIN_FLIGHT_M:  # then affordable() below would say None too
             return None
         self._belief = view.belief

@@ -33,7 +33,7 @@ import numpy as np
 from ..belief import LegBatch, downdate_inplace, gain_factor, trace_reductions
 from ..mission import TIME_TOL_S
 from ..sensor import stack
-from .base import GraphPlanner
+from .base import GraphPlanner, softmax
 
 
 @dataclass(frozen=True)
@@ -141,7 +141,7 @@ class MCTSPlanner(GraphPlanner):
     def _expand_info(self, state: _State) -> None:
         """Playable actions and their one-step rewards, best reward per second first."""
         costs = state.costs
-        if state.elapsed >= self.config.horizon_s - TIME_TOL_S:
+        if state.elapsed >= self.settings.horizon_s - TIME_TOL_S:
             state.order = np.zeros(0, dtype=np.int64)
             return
         actions = np.flatnonzero(self.view.fits_budget(costs, state.remaining))
@@ -158,7 +158,7 @@ class MCTSPlanner(GraphPlanner):
             cov = cov.copy()
             downdate_inplace(cov, gain_factor(cov, *leg)[0])
         cost = float(state.costs[action])
-        cfg = self.config
+        cfg = self.settings
         share = min(1.0, (cfg.horizon_s - state.elapsed) / cost)
         node = int(rm.neighbours[state.node, action])
         child = _State(node, cov, state.remaining - cost, state.elapsed + cost, self._node_costs(node))
@@ -167,7 +167,7 @@ class MCTSPlanner(GraphPlanner):
 
     # -- search -----------------------------------------------------------------------------
     def _rollout(self, state: _State) -> float:
-        cfg = self.config
+        cfg = self.settings
         total, discount = 0.0, 1.0
         while True:
             self._expand_info(state)
@@ -179,15 +179,14 @@ class MCTSPlanner(GraphPlanner):
             if top <= 0:
                 break
             logits = cfg.rollout_lambda * rate / top
-            p = np.exp(logits - logits.max())
-            a = int(self.rng.choice(acts, p=p / p.sum()))
+            a = int(self.rng.choice(acts, p=softmax(logits)))
             state, r, d = self._transition(state, a)
             total += discount * r
             discount *= d
         return total
 
     def _simulate(self, state: _State) -> float:
-        cfg = self.config
+        cfg = self.settings
         if state.order is None:
             self._expand_info(state)
         if state.order.size == 0:
@@ -213,7 +212,7 @@ class MCTSPlanner(GraphPlanner):
 
     def act(self, obs):
         view = self.view
-        cfg = self.config
+        cfg = self.settings
         node = int(obs["current_node"][0])
         self._roi = view.belief_roi()
         self._unit = 1.0

@@ -61,11 +61,11 @@ class CoveragePlanner(ContinuousPlanner):
     def reset(self, view, seed):
         super().reset(view, seed)
         cfg = view.config
-        alt = self.config.altitude or cfg.graph.altitudes[0]
+        alt = self.settings.altitude or cfg.graph.altitudes[0]
         half = view.sensor.footprint_side(alt) / 2.0
         width, height = cfg.grid.size_m
         half_x, half_y = min(half, width / 2), min(half, height / 2)
-        step = 2 * half * (1.0 - self.config.overlap)
+        step = 2 * half * (1.0 - self.settings.overlap)
         n_lanes = max(1, math.ceil((height - 2 * half_y) / step - 1e-9) + 1)
         ys = np.linspace(half_y, height - half_y, n_lanes) if n_lanes > 1 else np.array([height / 2])
         xs = (half_x, width - half_x)

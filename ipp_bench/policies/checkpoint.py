@@ -84,16 +84,10 @@ def load_checkpoint(path: str | Path | None = None, device: str | torch.device =
     return net, dict(payload.get("meta") or {})
 
 
-def check_compatible(net: AttentionNet, observation_space: Any, source: str = "checkpoint") -> None:
-    """Raise CheckpointError if ``net`` cannot read the env's observation space."""
-    try:
-        nf = observation_space["node_features"].shape[-1]
-        pe = observation_space["pos_encoding"].shape[-1]
-    except (KeyError, TypeError, AttributeError):
+def check_feature_dims(cfg: NetConfig, node_features: int, pe_dim: int, source: str = "checkpoint") -> None:
+    """Raise CheckpointError (a ValueError) if a network of ``cfg`` cannot read observations with
+    ``node_features`` node features and ``pe_dim`` positional-encoding columns."""
+    if (node_features, pe_dim) != (cfg.node_dim, cfg.pe_dim):
         raise CheckpointError(
-            f"{source}: the environment's observation is not the GraphIPPEnv Dict "
-            "(node_features, pos_encoding, current_node, neighbours, action_mask, budget)") from None
-    if nf != net.cfg.node_dim or pe != net.cfg.pe_dim:
-        raise CheckpointError(
-            f"{source} expects {net.cfg.node_dim} node features and pe_dim={net.cfg.pe_dim}; the environment "
-            f"gives {nf} node features and pe_dim={pe} (set GraphConfig.pe_dim={net.cfg.pe_dim})")
+            f"{source} expects {cfg.node_dim} node features and pe_dim={cfg.pe_dim}; the environment "
+            f"gives {node_features} node features and pe_dim={pe_dim} (set GraphConfig.pe_dim={cfg.pe_dim})")

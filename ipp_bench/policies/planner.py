@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..planners.base import GraphPlanner
+from ..planners.base import GraphPlanner, softmax
 
 
 @dataclass(frozen=True)
@@ -97,20 +97,14 @@ class AttentionPlanner(GraphPlanner):
         shape = (obs["node_features"].shape[-1], obs["pos_encoding"].shape[-1])
         if shape == self._checked_shape:
             return
-        from .checkpoint import CheckpointError
+        from .checkpoint import check_feature_dims
 
-        cfg = self.net.cfg
-        if shape != (cfg.node_dim, cfg.pe_dim):
-            raise CheckpointError(
-                f"attention checkpoint {self._source} expects {cfg.node_dim} node features "
-                f"and pe_dim={cfg.pe_dim}; this environment gives {shape[0]} and pe_dim={shape[1]}")
+        check_feature_dims(self.net.cfg, *shape, source=f"attention checkpoint {self._source}")
         self._checked_shape = shape
 
     def probabilities(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         """Policy over the k neighbours (masked neighbours have probability 0)."""
-        logits = self._logits(obs)
-        p = np.exp(logits - logits.max())
-        return p / p.sum()
+        return softmax(self._logits(obs))
 
     def _logits(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         self._check(obs)
@@ -134,7 +128,6 @@ class AttentionPlanner(GraphPlanner):
 
     def act(self, obs: dict[str, np.ndarray]) -> int:
         logits = self._logits(obs)
-        if not self.config.sample:
+        if not self.settings.sample:
             return int(np.argmax(logits))
-        p = np.exp(logits - logits.max())
-        return int(self.rng.choice(p.size, p=p / p.sum()))
+        return int(self.rng.choice(logits.size, p=softmax(logits)))

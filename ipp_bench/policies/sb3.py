@@ -26,6 +26,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
+from ipp_bench.policies.checkpoint import check_feature_dims
 from ipp_bench.policies.network import (
     MASKED_LOGIT,
     AttentionEncoder,
@@ -49,13 +50,8 @@ def _check_obs_space(observation_space: spaces.Space, cfg: NetConfig) -> int:
     missing = [key for key in OBS_KEYS if key not in observation_space.spaces]
     if missing:
         raise ValueError(f"observation space lacks {missing}; AttentionPolicy needs the keys {OBS_KEYS}")
-    nf = observation_space["node_features"].shape
-    pe = observation_space["pos_encoding"].shape
-    if nf[-1] != cfg.node_dim or pe[-1] != cfg.pe_dim:
-        raise ValueError(
-            f"observation has {nf[-1]} node features and {pe[-1]} positional-encoding columns; "
-            f"the network was configured for node_dim={cfg.node_dim}, pe_dim={cfg.pe_dim}"
-        )
+    check_feature_dims(cfg, observation_space["node_features"].shape[-1], observation_space["pos_encoding"].shape[-1],
+                       source="AttentionPolicy")
     return int(observation_space["neighbours"].shape[0])
 
 

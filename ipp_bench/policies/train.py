@@ -53,6 +53,7 @@ import torch.nn.functional as F
 
 from ipp_bench._threads import available_cpus
 from ipp_bench.envs.registry import parse_overrides
+from ipp_bench.planners.base import softmax
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from ipp_bench.policies.network import MASKED_LOGIT, AttentionNet, NetConfig
 
@@ -314,8 +315,7 @@ def soft_target(action: int, scores: np.ndarray | None, k: int, temperature: flo
         target[action] = 1.0
         return target
     z = np.where(valid, (scores / best - 1.0) / temperature, -np.inf)
-    p = np.exp(z - z.max())
-    return (p / p.sum()).astype(np.float32)
+    return softmax(z).astype(np.float32)
 
 
 def obs_batch(obs_list: list[dict], device: torch.device) -> dict[str, torch.Tensor]:
@@ -329,9 +329,7 @@ def net_action(net: AttentionNet, obs: dict, device: torch.device, deterministic
     logits = logits[0].cpu().numpy().astype(np.float64)
     if deterministic:
         return int(np.argmax(logits))
-    p = np.exp(logits - logits.max())
-    p /= p.sum()
-    return int((rng or np.random.default_rng()).choice(p.size, p=p))
+    return int((rng or np.random.default_rng()).choice(logits.size, p=softmax(logits)))
 
 
 def evaluate_net(net: AttentionNet, task: str, episodes: int, device: torch.device,

@@ -10,7 +10,7 @@ import numpy as np
 
 from ipp_bench.config import IPPConfig
 from ipp_bench.envs.graph import GraphIPPEnv
-from ipp_bench.envs.render import render_mission
+from ipp_bench.envs.panels import render_mission
 from ipp_bench.sim.mission import MuJoCoMission
 from ipp_bench.sim.render import azimuth_to_centre, chase_camera
 from ipp_bench.sim.world import SimConfig, WeedWorld

@@ -27,7 +27,7 @@ import numpy as np
 
 from ipp_bench.belief import GPBelief
 from ipp_bench.config import IPPConfig
-from ipp_bench.mission import Leg, Mission, leg_lengths
+from ipp_bench.mission import FlownLeg, Mission, leg_lengths
 from ipp_bench.sensor import Observation, Sensor
 from ipp_bench.sim.controller import Leg as Reference
 from ipp_bench.sim.world import WeedWorld
@@ -64,7 +64,7 @@ class MuJoCoMission(Mission):
         return np.array([Reference.duration_for(d, speed, ramp) for d in leg_lengths(start_xyz, end_xyzs)])
 
     # -- flight -----------------------------------------------------------------------------------
-    def fly_to(self, xyz) -> Leg:
+    def fly_to(self, xyz) -> FlownLeg:
         """Flies to ``xyz`` [m] in MuJoCo, reading the camera along the way and on arrival.
 
         Raises:
@@ -103,7 +103,7 @@ class MuJoCoMission(Mission):
         self._since_measurement = state["since"]
         self.path.append((self.time_s, *self.position))
         n = self.assimilate_records(records)
-        return Leg(self.time_s - t0, state["flown"], n, self.time_s)
+        return FlownLeg(self.time_s - t0, state["flown"], n, self.time_s)
 
     def _inside(self, p: np.ndarray) -> np.ndarray:
         width, height = self.config.grid.size_m

@@ -5,8 +5,17 @@ from __future__ import annotations
 import json
 
 import pytest
-from lb_helpers import (EPISODES, PLANNERS, TASKS, TINY_ENV, assert_same_results, results, run_tiny, tiny_plan,
-                        without_timing)
+from lb_helpers import (
+    EPISODES,
+    PLANNERS,
+    TASKS,
+    TINY_ENV,
+    assert_same_results,
+    results,
+    run_tiny,
+    tiny_plan,
+    without_timing,
+)
 
 import ipp_bench.eval.leaderboard as lb
 import ipp_bench.eval.plan as plan_module

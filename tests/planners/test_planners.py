@@ -18,7 +18,7 @@ def test_registry_and_specs():
     assert parse_spec("mcts:simulations=200, gamma=0.9") == ("mcts", {"simulations": "200", "gamma": "0.9"})
     cfg = make_config("mcts", {"simulations": "200", "time_limit_s": "none"})
     assert cfg.simulations == 200 and cfg.time_limit_s is None
-    assert make_planner("coverage:altitude=10").config.altitude == 10.0
+    assert make_planner("coverage:altitude=10").settings.altitude == 10.0
 
 
 @pytest.mark.parametrize("spec, match", [

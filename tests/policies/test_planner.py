@@ -52,7 +52,7 @@ def test_planner_argmax_is_deterministic_and_sampling_is_seeded(small_ckpt):
     det = make_planner(f"attention:checkpoint={small_ckpt}")
     assert _fly(det, seed=1) == _fly(det, seed=1)
     smp = make_planner(f"attention:checkpoint={small_ckpt},sample=true")
-    assert smp.config.sample is True
+    assert smp.settings.sample is True
     a, b = _fly(smp, seed=2), _fly(smp, seed=2)
     assert a == b
 

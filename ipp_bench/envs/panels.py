@@ -1,4 +1,8 @@
-"""Numpy-only rendering of a mission: truth, belief mean, belief std and the path by time."""
+"""The ``rgb_array`` of a graph env, numpy only: truth, belief mean, belief std and the path by time.
+
+(The MuJoCo views, chase camera and downward camera, are :mod:`ipp_bench.sim.render`; the annotated
+figure of ``ipp-bench evaluate --render`` is :mod:`ipp_bench.eval.figure`.)
+"""
 
 from __future__ import annotations
 

@@ -222,12 +222,5 @@ class GPBelief:
         A, _, _ = gain_factor(self.cov, cells, W, R)
         return np.maximum(np.diag(self.cov) - np.einsum("ij,ij->i", A, A), 0.0)
 
-    def predict_update_local(self, cells: np.ndarray, W: np.ndarray, R: np.ndarray) -> GPBelief:
-        """A copy whose covariance is the posterior after measuring; the mean is kept."""
-        other = self.copy()
-        A, _, _ = gain_factor(other.cov, cells, W, R)
-        downdate_inplace(other.cov, A)
-        return other
-
 
 __all__ = ["GPBelief", "matern32", "cell_centres", "prior_covariance"]

@@ -53,7 +53,7 @@ import torch.nn.functional as F
 
 from ipp_bench._threads import available_cpus
 from ipp_bench.envs.registry import parse_overrides
-from ipp_bench.planners.base import softmax
+from ipp_bench.planners.base import GraphPlanner, softmax
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from ipp_bench.policies.network import MASKED_LOGIT, AttentionNet, NetConfig
 
@@ -268,7 +268,7 @@ def _validation(net: AttentionNet, cfg: TrainArgs, device: torch.device) -> dict
 
 
 def make_expert(name: str) -> _PlannerExpert:
-    """``expert(env, obs) -> action index`` from the planner registry (``greedy``, ``mcts``, ...)."""
+    """``expert(obs) -> (action index, scores)`` from the planner registry (``greedy``, ``mcts``, ...)."""
     try:
         from ipp_bench.planners import make_planner
     except ImportError as err:
@@ -280,17 +280,12 @@ def make_expert(name: str) -> _PlannerExpert:
 
 
 class _PlannerExpert:
-    """A registry planner as ``expert(env, obs) -> action``, reset at every episode."""
+    """A registry planner as ``expert(obs) -> (action, scores)``; the episode loop resets it."""
 
     def __init__(self, planner: Any) -> None:
         self.planner = planner
 
-    def reset(self, env, obs: dict, seed: int) -> None:
-        from ipp_bench.planners.base import RobotView
-
-        self.planner.reset(RobotView(env.unwrapped), seed)
-
-    def __call__(self, env, obs: dict) -> tuple[int, np.ndarray | None]:
+    def __call__(self, obs: dict) -> tuple[int, np.ndarray | None]:
         """The expert's action and, where the planner exposes them, its scores per neighbour."""
         if hasattr(self.planner, "scores"):
             scores = np.asarray(self.planner.scores(obs), dtype=np.float64)
@@ -436,28 +431,50 @@ class BCDataset:
 def collect_episodes(env, expert, net: AttentionNet | None, episodes: int, beta: float, data: BCDataset,
                      gamma: float, rng: np.random.Generator, seed0: int, device: torch.device,
                      temperature: float = 0.0) -> dict[str, float]:
-    """Fly ``episodes`` episodes; at each state the expert's action is executed with probability
-    ``beta`` (else the student's, sampled); every state is labelled with the expert's action."""
+    """Fly ``episodes`` episodes through the episode loop (:func:`~ipp_bench.planners.episode.fly_episode`);
+    at each state the expert's action is executed with probability ``beta`` (else the student's,
+    sampled); every state is labelled with the expert's action."""
+    from ipp_bench.planners.episode import fly_episode
+
     red, steps = [], 0
     for e in range(episodes):
-        obs, _ = env.reset(seed=seed0 + e)
-        expert.reset(env, obs, seed0 + e)
-        obs_list, acts, targets, rews, done = [], [], [], [], False
-        while not done:
-            a_exp, scores = expert(env, obs)
-            targets.append(soft_target(a_exp, scores, len(obs["action_mask"]), temperature))
-            a = a_exp
-            if net is not None and rng.random() >= beta:
-                a = net_action(net, obs, device, deterministic=False, rng=rng)
-            obs_list.append(obs)
-            acts.append(a_exp)
-            obs, r, term, trunc, _ = env.step(a)
-            rews.append(float(r))
-            done = term or trunc
-        data.add_episode(obs_list, acts, targets, rews, gamma)
-        red.append(env.unwrapped.mission.metrics()["uncertainty_reduction_pct"])
-        steps += len(acts)
+        dagger = _DaggerPlanner(expert, net, beta, rng, device, temperature)
+        rews: list[float] = []
+        result = fly_episode(env.unwrapped, dagger, seed0 + e, on_decision=lambda d: rews.append(d.reward))
+        data.add_episode(dagger.obs_list, dagger.expert_actions, dagger.targets, rews, gamma)
+        red.append(result.final["uncertainty_reduction_pct"])
+        steps += len(dagger.expert_actions)
     return {"episodes": episodes, "steps": steps, "unc_red_final": float(np.mean(red)) if red else float("nan")}
+
+
+class _DaggerPlanner(GraphPlanner):
+    """DAgger's behaviour policy as a planner: labels every state with the expert's action and
+    executes it with probability ``beta``, else the student's (sampled)."""
+
+    name = "dagger"
+
+    def __init__(self, expert, net, beta: float, rng: np.random.Generator, device: torch.device,
+                 temperature: float) -> None:
+        super().__init__(None)
+        self.expert, self.net, self.beta, self.student_rng = expert, net, beta, rng
+        self.device, self.temperature = device, temperature
+        self.obs_list: list[dict] = []
+        self.expert_actions: list[int] = []
+        self.targets: list[np.ndarray] = []
+
+    def reset(self, view, seed: int) -> None:
+        super().reset(view, seed)
+        self.expert.planner.reset(view, seed)
+
+    def act(self, obs):
+        a_exp, scores = self.expert(obs)
+        self.targets.append(soft_target(a_exp, scores, len(obs["action_mask"]), self.temperature))
+        a = a_exp
+        if self.net is not None and self.student_rng.random() >= self.beta:
+            a = net_action(self.net, obs, self.device, deterministic=False, rng=self.student_rng)
+        self.obs_list.append(obs)
+        self.expert_actions.append(a_exp)
+        return a
 
 
 def fit_bc(net: AttentionNet, data: BCDataset, epochs: int, lr: float, batch_size: int, rng: np.random.Generator,

@@ -30,7 +30,10 @@ class Roadmap:
         positions: (N, 3) node positions [m].
         levels: (N,) altitude level index of each node.
         neighbours: (N, k) neighbour node indices, nearest first.
-        costs: (N, k) travel time [s] to each neighbour.
+        costs: (N, k) nominal travel time [s] to each neighbour (length / speed). Not the clock:
+            what a leg costs an episode is the mission's ``leg_durations`` (the MuJoCo task adds
+            its velocity ramps); masks and planners ask the mission. On the core mission the two
+            are equal bit for bit (tests/envs/test_graph.py).
         pos_encoding: (N, pe_dim) float32 Laplacian eigenvector encoding.
     """
 

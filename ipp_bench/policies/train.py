@@ -30,6 +30,12 @@ Run folder (``--out DIR``, default ``runs/<task>__attention__<seed>__<time>``)::
 ``--resume`` continues a run from ``latest.zip``: a checkpoint is written after every PPO update,
 so an interrupted run (Ctrl-C, SIGTERM) loses at most the rollout being collected, which was not
 trained on yet; the step counter continues from the checkpoint.
+
+Episodes (validation, warm-start collection) go through the suite's one episode loop,
+:func:`ipp_bench.planners.episode.fly_episode`, and validation decides through the leaderboard's
+:class:`~ipp_bench.policies.planner.AttentionPlanner`. Why this module is over 400 lines: it holds
+the whole training script (arguments, warm start, PPO callbacks, run folder); issue 11 rewrites
+and splits it.
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ import pytest
 
 from ipp_bench.eval.runner import make_env, run_episode
 from ipp_bench.planners import RobotView, make_config, make_planner, parse_spec, planner_names
+from ipp_bench.planners.episode import fly_episode
 
 TASK = "ipp_bench/Grid15Eval-v0"
 CHEAP = {"random": "random", "coverage": "coverage", "greedy": "greedy",
@@ -130,8 +131,6 @@ def test_decisions_do_not_change_when_the_truth_a_planner_could_reach_is_swapped
                 noise.flags.writeable = False
                 e.mission.truth = noise  # the measurements still come from mission._truth_flat
 
-        from ipp_bench.planners.episode import fly_episode
-
         fly_episode(env, CHEAP[name], 4, on_reset=on_reset,
                     on_decision=lambda d: log.append(np.round(np.asarray(d.action, float), 9).tolist()))
         return log
@@ -145,30 +144,19 @@ def test_planners_never_read_the_ground_truth(name):
     spec = CHEAP[name]
 
     def decisions(truth_patch=None):
-        env = make_env(TASK, budget_s=30.0)
-        env.reset(seed=4)
-        if truth_patch is not None:
-            m = env.mission
-            truth = m.truth.copy()
-            truth[truth_patch] = 1.0 - truth[truth_patch]
-            truth.flags.writeable = False
-            m.truth, m._truth_flat = truth, truth.reshape(-1)
-        planner = make_planner(spec)
-        planner.reset(RobotView(env), 4)
-        out, obs = [], env._observation()
-        while env.mission.remaining_s > 0.5:
-            if planner.kind == "graph":
-                if not obs["action_mask"].any():
-                    break
-                a = planner.act(obs)
-                out.append(a)
-                obs, *_ = env.step(a)
-            else:
-                wp = planner.next_waypoint()
-                if wp is None:
-                    break
-                out.append(tuple(np.round(wp, 9)))
-                env.mission.fly_to(wp)
+        env = make_env(TASK, budget_s=30.0, report_times=[30.0])
+
+        def patch(e):
+            if truth_patch is not None:
+                m = e.mission
+                truth = m.truth.copy()
+                truth[truth_patch] = 1.0 - truth[truth_patch]
+                truth.flags.writeable = False
+                m.truth, m._truth_flat = truth, truth.reshape(-1)
+
+        out = []
+        fly_episode(env, spec, 4, on_reset=patch,
+                    on_decision=lambda d: out.append(np.round(np.asarray(d.action, float), 9).tolist()))
         seen = np.zeros(225, bool)
         for _, *p in env.mission.measurement_log:
             o = env.sensor.observe(p)

@@ -269,3 +269,14 @@ def test_planners_in_comma_form_work(capsys, tmp_path):
                           "--no-progress", "--out", str(tmp_path / "lb"), *TINY], capsys)
     assert rc == 0
     assert "planners: random, coverage, mcts:exploration=0.5,simulations=2, greedy" in stdout
+
+
+def test_ctrl_c_during_evaluate_is_one_line_and_exit_130(capsys, monkeypatch):
+    import ipp_bench.eval.runner as runner
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner, "run_episode", interrupted)
+    rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", *TINY], capsys)
+    assert rc == 130 and err.strip() == "ipp-bench: interrupted"

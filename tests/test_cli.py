@@ -1,4 +1,4 @@
-"""``ipp-bench`` smoke tests through ``main([...])``."""
+"""``ipp-bench`` (ipp_bench.cli) smoke tests through ``main([...])``; bad input is tests/test_bad_input.py."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from ipp_bench.eval.executors import check_executor_args
 from ipp_bench.eval.leaderboard import QUICK_EPISODES
 
 TINY = ["--env", "budget_s=40", "--env", "report_times=[20,40]"]
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_tasks_lists_ids_and_tags(capsys):

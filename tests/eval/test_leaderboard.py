@@ -1,4 +1,5 @@
-"""Leaderboard runs: CSV layout, same seeds for every planner, resume, refusal, backends."""
+"""Leaderboard runs (ipp_bench.eval.leaderboard, .results, .executors): CSV layout, same seeds for
+every planner, resume, extension, refusal, backends."""
 
 from __future__ import annotations
 
@@ -18,78 +19,15 @@ from lb_helpers import (
 )
 
 import ipp_bench.eval.leaderboard as lb
-import ipp_bench.eval.plan as plan_module
 from ipp_bench.eval.leaderboard import (
     COLUMNS,
-    QUICK_OVERRIDES,
     RESULTS_CSV,
     ResultsMismatchError,
-    episode_seeds,
-    make_plan,
     read_results,
 )
-from ipp_bench.planners import REGISTRY, parse_spec
 
 REQUIRED = ("task", "planner", "seed", "time_s", "trace_roi", "rmse_roi", "uncertainty_reduction_pct",
             "rmse_reduction_pct", "decisions", "decision_time_mean_s", "decision_time_max_s")
-
-
-# -- arguments --------------------------------------------------------------------------------------
-def test_episode_seeds_are_deterministic_distinct_and_prefix_stable():
-    seeds = episode_seeds(3, 5)
-    assert seeds == episode_seeds(3, 5)
-    assert len(set(seeds)) == 5
-    assert episode_seeds(3, 2) == seeds[:2]
-    assert episode_seeds(4, 5) != seeds
-    assert all(0 <= s < 2**31 for s in seeds)
-    with pytest.raises(ValueError, match="episodes"):
-        episode_seeds(0, 0)
-
-
-def test_plan_canonicalises_specs_and_resolves_short_task_names():
-    plan = make_plan(tasks=["Grid15Eval-v0"], planners=["random", "mcts:simulations=007"], episodes=2)
-    assert plan.tasks == ("ipp_bench/Grid15Eval-v0",)
-    assert plan.planners == ("random", "mcts:simulations=7")
-    assert len(plan.jobs()) == 4
-
-
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(planners=["nope"]), "unknown planner 'nope'"),
-    (dict(planners=["greedy:depth=3"]), "has no setting"),
-    (dict(planners=["mcts:simulations=many"]), "mcts.simulations"),
-    (dict(tasks=["Nope-v0"]), "unknown task"),
-    (dict(planners=["random", "random"]), "given twice"),
-    (dict(env_overrides={"budget_s": 10}), "no report time"),
-    (dict(env_overrides={"no_such_field": 1}), "unknown config field"),
-], ids=["planner", "setting", "value", "task", "duplicate", "budget", "override"])
-def test_bad_arguments_fail_with_the_library_message(kwargs, match):
-    args = dict(tasks=["Grid15Eval-v0"], planners=["random"], episodes=1, log=lambda m: None)
-    args.update(kwargs)
-    with pytest.raises(ValueError, match=match):
-        make_plan(**args)
-
-
-def test_quick_overrides_fit_every_planner_and_the_spec_wins():
-    names = [n for n in QUICK_OVERRIDES if n in REGISTRY]
-    assert names, "quick mode overrides no registered planner"
-    plan = make_plan(tasks=["Grid15Eval-v0"], planners=names, quick=True, log=lambda m: None)
-    assert plan.episodes == lb.QUICK_EPISODES
-    for spec in plan.planners:
-        name, overrides = parse_spec(spec)
-        assert {k: str(v) for k, v in QUICK_OVERRIDES[name].items()}.items() <= overrides.items()
-    own = make_plan(tasks=["Grid15Eval-v0"], planners=["mcts:simulations=2"], quick=True)
-    assert own.planners == ("mcts:simulations=2",)
-
-
-def test_default_planners_leave_out_what_cannot_load_but_explicit_fails_loudly(monkeypatch):
-    monkeypatch.setitem(REGISTRY, "ghost", "ipp_bench.planners.no_such_module:Ghost")
-    monkeypatch.setattr(plan_module, "planner_names", lambda: ["random", "ghost"])
-    notes = []
-    plan = make_plan(tasks=["Grid15Eval-v0"], episodes=1, log=notes.append)
-    assert plan.planners == ("random",)
-    assert any("ghost" in n and "no_such_module" in n for n in notes)
-    with pytest.raises(ImportError, match="no_such_module"):
-        make_plan(tasks=["Grid15Eval-v0"], planners=["ghost"], episodes=1)
 
 
 # -- the run ----------------------------------------------------------------------------------------

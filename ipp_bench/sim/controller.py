@@ -3,6 +3,9 @@
 * :class:`Leg` is the reference for one straight waypoint-to-waypoint leg: a
   cruise at up to ``speed`` (2 m/s) with raised-cosine velocity ramps, so the
   commanded acceleration (and the attitude it implies) is continuous.
+* :class:`ContinuousLeg` is the v1 reference: velocity-continuous through waypoints (the drone
+  does not stop at a node; it slows down only where the next leg turns back), with
+  :func:`continuous_durations` its exact duration for the mission's affordability oracle.
 * :class:`CascadedController` closes a PD position loop with acceleration
   feed-forward, turns the desired acceleration into a thrust vector (tilt
   limited) and a desired attitude at fixed yaw, runs a geometric attitude loop
@@ -100,6 +103,110 @@ class Leg:
             a = self._along(t + lead_s)[2]
         (dx, dy, dz), (x0, y0, z0) = self._dir, self._start
         return (x0 + s * dx, y0 + s * dy, z0 + s * dz), (v * dx, v * dy, v * dz), (a * dx, a * dy, a * dz)
+
+
+class ContinuousLeg:
+    """Velocity-continuous reference from ``start`` (with velocity ``v0``) to ``end``, ending at cruise speed.
+
+    Split along the leg's direction d and across it. Along: the speed goes from u0 = v0 . d to the
+    cruise speed v_c over T_r = ramp_s |v_c - u0| / v_max with a raised-cosine profile (continuous
+    acceleration, zero at both ends), then cruises; a leg too short to reach v_max cruises at
+    v_c = sqrt(u0^2 + 2 v_max L / ramp_s), reached exactly at the end. Across: the incoming cross
+    velocity w0 = v0 - u0 d decays along e(t) = w0 T_c G(t / T_c), G(x) = x (1 + 3x) (1 - x)^3
+    (e(0) = 0, e'(0) = w0, e''(0) = 0, and e, e', e'' vanish at T_c), T_c = 3.94 |w0| / lateral_accel
+    (3.94 = max |G''|) capped at the leg's duration. The reference ends at ``end`` with velocity v_c d:
+    the drone flies through a waypoint without stopping, and only reverses (stops along d) when the
+    next leg turns back. Duration (:func:`continuous_durations`) = T_r + (L - (u0 + v_c) T_r / 2) / v_c.
+    """
+
+    G_MAX_CURVATURE = 3.94  # max over [0, 1] of |G''(x)| = |12 x (1 - x) (5 x - 3)|
+
+    def __init__(self, start, v0, end, speed: float = 2.0, ramp_s: float = 1.0, lateral_accel: float = 3.0) -> None:
+        if speed <= 0.0 or ramp_s <= 0.0 or lateral_accel <= 0.0:
+            raise ValueError(f"ContinuousLeg speed, ramp_s and lateral_accel must be > 0, got {speed}, {ramp_s}, "
+                             f"{lateral_accel}")
+        self.start = np.asarray(start, dtype=np.float64).copy()
+        self.end = np.asarray(end, dtype=np.float64).copy()
+        v0 = np.asarray(v0, dtype=np.float64)
+        delta = self.end - self.start
+        self.length = L = float(np.linalg.norm(delta))
+        if L <= 0.0:
+            raise ValueError("ContinuousLeg: start and end coincide")
+        d = delta / L
+        self.direction = d
+        u0 = float(d @ v0)
+        w0 = v0 - u0 * d
+        vmax = float(speed)
+        vc = min(vmax, math.sqrt(u0 * u0 + 2.0 * vmax * L / ramp_s))
+        self.u0, self.cruise_speed = u0, vc
+        self.ramp_time = ramp_s * (vc - u0) / vmax
+        self.ramp_dist = 0.5 * (u0 + vc) * self.ramp_time
+        self.duration = self.ramp_time + max(L - self.ramp_dist, 0.0) / vc
+        wn = float(np.linalg.norm(w0))
+        self.cross_time = min(self.G_MAX_CURVATURE * wn / lateral_accel, self.duration) if wn > 1e-12 else 0.0
+        self._w0 = tuple(w0.tolist())
+        self._dir, self._start, self._v0 = tuple(d.tolist()), tuple(self.start.tolist()), tuple(v0.tolist())
+
+    def end_velocity(self) -> np.ndarray:
+        return self.cruise_speed * self.direction
+
+    def _along(self, t: float) -> tuple[float, float, float]:
+        u0, vc, Tr = self.u0, self.cruise_speed, self.ramp_time
+        if t < Tr:
+            w = math.pi / Tr
+            s, c = math.sin(w * t), math.cos(w * t)
+            dv = vc - u0
+            return u0 * t + 0.5 * dv * (t - s / w), u0 + 0.5 * dv * (1.0 - c), 0.5 * dv * w * s
+        return self.ramp_dist + vc * (t - Tr), vc, 0.0
+
+    def _across(self, t: float) -> tuple[float, float, float]:
+        """(G, G', G'') scale factors of w0 at time t: e = w0 g, e' = w0 g', e'' = w0 g''."""
+        Tc = self.cross_time
+        if Tc <= 0.0 or t >= Tc:
+            return 0.0, 0.0, 0.0
+        x = t / Tc
+        om = 1.0 - x
+        return (Tc * x * (1.0 + 3.0 * x) * om ** 3, om * om * (1.0 + 2.0 * x - 15.0 * x * x),
+                12.0 * x * om * (5.0 * x - 3.0) / Tc)
+
+    def sample(self, t: float, lead_s: float = 0.0) -> tuple[tuple, tuple, tuple]:
+        """Reference position [m], velocity [m/s] at leg time t [s] and acceleration [m/s^2] at t + lead_s.
+
+        Before the leg (t < 0) the incoming velocity is extrapolated; after it, the cruise.
+        """
+        (x0, y0, z0), (dx, dy, dz), (wx, wy, wz) = self._start, self._dir, self._w0
+        if t < 0.0:
+            vx, vy, vz = self._v0
+            return (x0 + vx * t, y0 + vy * t, z0 + vz * t), self._v0, (0.0, 0.0, 0.0)
+        s, v, _ = self._along(t)
+        g, g1, _ = self._across(t)
+        ta = t + lead_s
+        a = self._along(ta)[2]
+        g2 = self._across(ta)[2]
+        return ((x0 + s * dx + g * wx, y0 + s * dy + g * wy, z0 + s * dz + g * wz),
+                (v * dx + g1 * wx, v * dy + g1 * wy, v * dz + g1 * wz),
+                (a * dx + g2 * wx, a * dy + g2 * wy, a * dz + g2 * wz))
+
+
+def continuous_durations(start, v0, ends, speed: float = 2.0, ramp_s: float = 1.0) -> np.ndarray:
+    """Durations [s] of :class:`ContinuousLeg` from ``start`` with velocity ``v0`` to each of ``ends`` (K, 3).
+
+    ``v0=None`` gives the upper bound over every incoming velocity of magnitude <= ``speed``:
+    2 ramp_s + L / speed (reached when the leg turns straight back; the duration decreases with u0).
+    Zero-length legs take 0 s.
+    """
+    ends = np.asarray(ends, dtype=np.float64).reshape(-1, 3)
+    delta = ends - np.asarray(start, dtype=np.float64).reshape(1, 3)
+    L = np.linalg.norm(delta, axis=1)
+    if v0 is None:
+        return np.where(L > 0.0, 2.0 * ramp_s + L / speed, 0.0)
+    safe = np.where(L > 0.0, L, 1.0)
+    u0 = (delta @ np.asarray(v0, dtype=np.float64)) / safe
+    vc = np.minimum(speed, np.sqrt(u0 * u0 + 2.0 * speed * L / ramp_s))
+    vc = np.where(vc > 0.0, vc, 1.0)
+    Tr = ramp_s * (vc - u0) / speed
+    ramp_dist = 0.5 * (u0 + vc) * Tr
+    return np.where(L > 0.0, Tr + np.maximum(L - ramp_dist, 0.0) / vc, 0.0)
 
 
 class CascadedController:

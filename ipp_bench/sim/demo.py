@@ -304,7 +304,7 @@ class DemoVideo:
         r0, r1, c0, c1 = self._box_cam
         cam = renderer.render(None, c1 - c0, r1 - r0)
         buf[r0:r1, c0:c1, :3] = cam
-        weed = world.cfg.threshold(cam)
+        weed = world.cfg.segmenter(cam).astype(bool)
         shaded = (cam * 0.35).astype(np.uint8)
         shaded[weed] = (255, 40, 200)
         r0, r1, c0, c1 = self._box_mask

@@ -4,7 +4,7 @@
   cruise at up to ``speed`` (2 m/s) with raised-cosine velocity ramps, so the
   commanded acceleration (and the attitude it implies) is continuous.
 * :class:`ContinuousLeg` is the v1 reference: velocity-continuous through waypoints (the drone
-  does not stop at a node; it slows down only where the next leg turns back), with
+  does not stop at a node; it slows down only where the next leg turns away), with
   :func:`continuous_durations` its exact duration for the mission's affordability oracle.
 * :class:`CascadedController` closes a PD position loop with acceleration
   feed-forward, turns the desired acceleration into a thrust vector (tilt
@@ -105,108 +105,133 @@ class Leg:
         return (x0 + s * dx, y0 + s * dy, z0 + s * dz), (v * dx, v * dy, v * dz), (a * dx, a * dy, a * dz)
 
 
-class ContinuousLeg:
-    """Velocity-continuous reference from ``start`` (with velocity ``v0``) to ``end``, ending at cruise speed.
+def _blend_plan(start, v0, ends, speed: float, ramp_s: float, iters: int = 8):
+    """Cruise direction, cruise speed, blend time and total duration of :class:`ContinuousLeg` s.
 
-    Split along the leg's direction d and across it. Along: the speed goes from u0 = v0 . d to the
-    cruise speed v_c over T_r = ramp_s |v_c - u0| / v_max with a raised-cosine profile (continuous
-    acceleration, zero at both ends), then cruises; a leg too short to reach v_max cruises at
-    v_c = sqrt(u0^2 + 2 v_max L / ramp_s), reached exactly at the end. Across: the incoming cross
-    velocity w0 = v0 - u0 d decays along e(t) = w0 T_c G(t / T_c), G(x) = x (1 + 3x) (1 - x)^3
-    (e(0) = 0, e'(0) = w0, e''(0) = 0, and e, e', e'' vanish at T_c), T_c = 3.94 |w0| / lateral_accel
-    (3.94 = max |G''|) capped at the leg's duration. The reference ends at ``end`` with velocity v_c d:
-    the drone flies through a waypoint without stopping, and only reverses (stops along d) when the
-    next leg turns back. Duration (:func:`continuous_durations`) = T_r + (L - (u0 + v_c) T_r / 2) / v_c.
+    Solves p0 + v0 T_r / 2 + v_c d (T_r / 2 + t_c) = end with T_r = ramp_s |v_c d - v0| / speed
+    (a few fixed-point sweeps for d, then d is set so that the end is met exactly); legs too short
+    for the cruise speed get the largest v_c with t_c >= 0 (bisection).
+
+    Returns:
+        (d (K, 3), v_c (K,), T_r (K,), t_c (K,)).
+    """
+    ends = np.asarray(ends, dtype=np.float64).reshape(-1, 3)
+    v0 = np.asarray(v0, dtype=np.float64).reshape(1, 3)
+    delta = ends - np.asarray(start, dtype=np.float64).reshape(1, 3)
+    L = np.linalg.norm(delta, axis=1)
+    d0 = delta / np.where(L > 0, L, 1.0)[:, None]
+
+    def solve(vc):
+        d = d0.copy()
+        for _ in range(iters):
+            Tr = ramp_s * np.linalg.norm(vc[:, None] * d - v0, axis=1) / speed
+            q = delta - v0 * (0.5 * Tr)[:, None]
+            qn = np.linalg.norm(q, axis=1)
+            d = np.where(qn[:, None] > 1e-12, q / np.where(qn > 1e-12, qn, 1.0)[:, None], d0)
+        Tr = ramp_s * np.linalg.norm(vc[:, None] * d - v0, axis=1) / speed
+        q = delta - v0 * (0.5 * Tr)[:, None]
+        qn = np.linalg.norm(q, axis=1)
+        d = np.where(qn[:, None] > 1e-12, q / np.where(qn > 1e-12, qn, 1.0)[:, None], d0)
+        return d, Tr, qn / vc - 0.5 * Tr
+
+    vc = np.full(L.shape, float(speed))
+    d, Tr, tc = solve(vc)
+    short = tc < 0.0
+    if short.any():
+        lo, hi = np.zeros(int(short.sum())), np.full(int(short.sum()), float(speed))
+        sub = (lambda v: _sub_solve(solve, short, vc, v))
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            ok = sub(mid)[2] >= 0.0
+            lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
+        vc[short] = np.maximum(lo, 1e-6)
+        d, Tr, tc = solve(vc)
+    return d, vc, Tr, np.maximum(tc, 0.0)
+
+
+def _sub_solve(solve, rows, vc, values):
+    full = vc.copy()
+    full[rows] = np.maximum(values, 1e-6)
+    d, Tr, tc = solve(full)
+    return d[rows], Tr[rows], tc[rows]
+
+
+class ContinuousLeg:
+    """Velocity-continuous reference from ``start`` (velocity ``v0``) to ``end``, leaving at cruise speed.
+
+    The velocity blends from ``v0`` to the cruise velocity v_c d with a raised cosine over
+    T_r = ramp_s |v_c d - v0| / speed (continuous acceleration, zero at both ends, peak
+    pi speed / (2 ramp_s)), then holds it until ``end``; the cruise direction d is the one that
+    makes the blend plus the cruise land exactly on ``end``. A blend of two velocities of at most
+    ``speed`` never exceeds ``speed``. The drone flies through a waypoint without stopping and
+    slows down only where the next leg turns away (to zero where it turns straight back).
+    Duration T_r + t_c (:func:`continuous_durations`).
     """
 
-    G_MAX_CURVATURE = 3.94  # max over [0, 1] of |G''(x)| = |12 x (1 - x) (5 x - 3)|
-
-    def __init__(self, start, v0, end, speed: float = 2.0, ramp_s: float = 1.0, lateral_accel: float = 3.0) -> None:
-        if speed <= 0.0 or ramp_s <= 0.0 or lateral_accel <= 0.0:
-            raise ValueError(f"ContinuousLeg speed, ramp_s and lateral_accel must be > 0, got {speed}, {ramp_s}, "
-                             f"{lateral_accel}")
+    def __init__(self, start, v0, end, speed: float = 2.0, ramp_s: float = 1.0) -> None:
+        if speed <= 0.0 or ramp_s <= 0.0:
+            raise ValueError(f"ContinuousLeg speed and ramp_s must be > 0, got {speed}, {ramp_s}")
         self.start = np.asarray(start, dtype=np.float64).copy()
         self.end = np.asarray(end, dtype=np.float64).copy()
-        v0 = np.asarray(v0, dtype=np.float64)
-        delta = self.end - self.start
-        self.length = L = float(np.linalg.norm(delta))
-        if L <= 0.0:
+        self.v0 = np.asarray(v0, dtype=np.float64).copy()
+        if np.linalg.norm(self.end - self.start) <= 0.0:
             raise ValueError("ContinuousLeg: start and end coincide")
-        d = delta / L
-        self.direction = d
-        u0 = float(d @ v0)
-        w0 = v0 - u0 * d
-        vmax = float(speed)
-        vc = min(vmax, math.sqrt(u0 * u0 + 2.0 * vmax * L / ramp_s))
-        self.u0, self.cruise_speed = u0, vc
-        self.ramp_time = ramp_s * (vc - u0) / vmax
-        self.ramp_dist = 0.5 * (u0 + vc) * self.ramp_time
-        self.duration = self.ramp_time + max(L - self.ramp_dist, 0.0) / vc
-        wn = float(np.linalg.norm(w0))
-        self.cross_time = min(self.G_MAX_CURVATURE * wn / lateral_accel, self.duration) if wn > 1e-12 else 0.0
-        self._w0 = tuple(w0.tolist())
-        self._dir, self._start, self._v0 = tuple(d.tolist()), tuple(self.start.tolist()), tuple(v0.tolist())
+        d, vc, Tr, tc = _blend_plan(self.start, self.v0, self.end[None], float(speed), float(ramp_s))
+        self.direction, self.cruise_speed = d[0], float(vc[0])
+        self.ramp_time, self.cruise_time = float(Tr[0]), float(tc[0])
+        self.duration = self.ramp_time + self.cruise_time
+        self._dv = tuple((self.cruise_speed * self.direction - self.v0).tolist())
+        self._vc = tuple((self.cruise_speed * self.direction).tolist())
+        self._start, self._v = tuple(self.start.tolist()), tuple(self.v0.tolist())
+        Tr2 = 0.5 * self.ramp_time
+        self._blend_end = tuple((self.start + (self.v0 + self.cruise_speed * self.direction) * Tr2).tolist())
 
     def end_velocity(self) -> np.ndarray:
         return self.cruise_speed * self.direction
-
-    def _along(self, t: float) -> tuple[float, float, float]:
-        u0, vc, Tr = self.u0, self.cruise_speed, self.ramp_time
-        if t < Tr:
-            w = math.pi / Tr
-            s, c = math.sin(w * t), math.cos(w * t)
-            dv = vc - u0
-            return u0 * t + 0.5 * dv * (t - s / w), u0 + 0.5 * dv * (1.0 - c), 0.5 * dv * w * s
-        return self.ramp_dist + vc * (t - Tr), vc, 0.0
-
-    def _across(self, t: float) -> tuple[float, float, float]:
-        """(G, G', G'') scale factors of w0 at time t: e = w0 g, e' = w0 g', e'' = w0 g''."""
-        Tc = self.cross_time
-        if Tc <= 0.0 or t >= Tc:
-            return 0.0, 0.0, 0.0
-        x = t / Tc
-        om = 1.0 - x
-        return (Tc * x * (1.0 + 3.0 * x) * om ** 3, om * om * (1.0 + 2.0 * x - 15.0 * x * x),
-                12.0 * x * om * (5.0 * x - 3.0) / Tc)
 
     def sample(self, t: float, lead_s: float = 0.0) -> tuple[tuple, tuple, tuple]:
         """Reference position [m], velocity [m/s] at leg time t [s] and acceleration [m/s^2] at t + lead_s.
 
         Before the leg (t < 0) the incoming velocity is extrapolated; after it, the cruise.
         """
-        (x0, y0, z0), (dx, dy, dz), (wx, wy, wz) = self._start, self._dir, self._w0
+        (x0, y0, z0), (ux, uy, uz), (gx, gy, gz) = self._start, self._v, self._dv
+        Tr = self.ramp_time
         if t < 0.0:
-            vx, vy, vz = self._v0
-            return (x0 + vx * t, y0 + vy * t, z0 + vz * t), self._v0, (0.0, 0.0, 0.0)
-        s, v, _ = self._along(t)
-        g, g1, _ = self._across(t)
+            return (x0 + ux * t, y0 + uy * t, z0 + uz * t), self._v, (0.0, 0.0, 0.0)
+        if t < Tr:
+            w = math.pi / Tr
+            sig = 0.5 * (1.0 - math.cos(w * t))
+            Sig = 0.5 * (t - math.sin(w * t) / w)
+            pos = (x0 + ux * t + gx * Sig, y0 + uy * t + gy * Sig, z0 + uz * t + gz * Sig)
+            vel = (ux + gx * sig, uy + gy * sig, uz + gz * sig)
+        else:
+            (bx, by, bz), (cx, cy, cz) = self._blend_end, self._vc
+            c = t - Tr
+            pos = (bx + cx * c, by + cy * c, bz + cz * c)
+            vel = self._vc
         ta = t + lead_s
-        a = self._along(ta)[2]
-        g2 = self._across(ta)[2]
-        return ((x0 + s * dx + g * wx, y0 + s * dy + g * wy, z0 + s * dz + g * wz),
-                (v * dx + g1 * wx, v * dy + g1 * wy, v * dz + g1 * wz),
-                (a * dx + g2 * wx, a * dy + g2 * wy, a * dz + g2 * wz))
+        if 0.0 <= ta < Tr:
+            w = math.pi / Tr
+            k = 0.5 * w * math.sin(w * ta)
+            acc = (gx * k, gy * k, gz * k)
+        else:
+            acc = (0.0, 0.0, 0.0)
+        return pos, vel, acc
 
 
 def continuous_durations(start, v0, ends, speed: float = 2.0, ramp_s: float = 1.0) -> np.ndarray:
     """Durations [s] of :class:`ContinuousLeg` from ``start`` with velocity ``v0`` to each of ``ends`` (K, 3).
 
-    ``v0=None`` gives the upper bound over every incoming velocity of magnitude <= ``speed``:
-    2 ramp_s + L / speed (reached when the leg turns straight back; the duration decreases with u0).
-    Zero-length legs take 0 s.
+    ``v0=None`` gives an upper bound over every incoming velocity of magnitude <= ``speed``:
+    2 ramp_s + L / speed, the duration when the leg turns straight back at full speed (checked
+    against random incoming velocities in the tests). Zero-length legs take 0 s.
     """
     ends = np.asarray(ends, dtype=np.float64).reshape(-1, 3)
-    delta = ends - np.asarray(start, dtype=np.float64).reshape(1, 3)
-    L = np.linalg.norm(delta, axis=1)
+    L = np.linalg.norm(ends - np.asarray(start, dtype=np.float64).reshape(1, 3), axis=1)
     if v0 is None:
         return np.where(L > 0.0, 2.0 * ramp_s + L / speed, 0.0)
-    safe = np.where(L > 0.0, L, 1.0)
-    u0 = (delta @ np.asarray(v0, dtype=np.float64)) / safe
-    vc = np.minimum(speed, np.sqrt(u0 * u0 + 2.0 * speed * L / ramp_s))
-    vc = np.where(vc > 0.0, vc, 1.0)
-    Tr = ramp_s * (vc - u0) / speed
-    ramp_dist = 0.5 * (u0 + vc) * Tr
-    return np.where(L > 0.0, Tr + np.maximum(L - ramp_dist, 0.0) / vc, 0.0)
+    _, _, Tr, tc = _blend_plan(start, v0, ends, speed, ramp_s)
+    return np.where(L > 0.0, Tr + tc, 0.0)
 
 
 class CascadedController:

@@ -40,8 +40,7 @@ class FlightConfig:
     """How legs are flown (defaults: v1)."""
 
     mode: str = "continuous"  # "continuous": through waypoints (v1); "stop": settle at each (v0)
-    ramp_s: float = 1.0  # [s] time to change the along-leg speed by the full cruise speed
-    lateral_accel: float = 3.0  # [m/s^2] peak acceleration when bending the incoming cross velocity away
+    ramp_s: float = 1.0  # [s] time to change the velocity by the full cruise speed (peak accel pi v / (2 ramp_s))
     arrive_tol: float = 0.15  # [m] "stop": waypoint reached within this distance ...
     settle_speed: float = 0.3  # [m/s] ... and below this speed
     max_extra_s: float = 5.0  # [s] "stop": give up settling this long after the reference arrived
@@ -49,7 +48,7 @@ class FlightConfig:
     def __post_init__(self) -> None:
         if self.mode not in FLIGHT_MODES:
             raise ValueError(f"FlightConfig.mode must be one of {FLIGHT_MODES}, got {self.mode!r}")
-        for name in ("ramp_s", "lateral_accel", "arrive_tol", "settle_speed"):
+        for name in ("ramp_s", "arrive_tol", "settle_speed"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0.0):
                 raise ValueError(f"FlightConfig.{name} must be a finite number > 0, got {v}")
@@ -215,7 +214,7 @@ class Flight:
         Returns:
             The leg flown (its ``duration`` is what the leg took, unless stopped early).
         """
-        leg = ContinuousLeg(self.ref_pos, self.ref_vel, target, self.speed, self.ramp_s, self.cfg.lateral_accel)
+        leg = ContinuousLeg(self.ref_pos, self.ref_vel, target, self.speed, self.ramp_s)
         t0 = self.ref_time
         end = t0 + leg.duration
         limit = end if time_limit_s is None else min(end, float(time_limit_s))

@@ -7,16 +7,28 @@ For calibration fields whose seeds are disjoint from every evaluation seed (fiel
 generator), the drone is placed over the map at each altitude, hovers ``hover_s`` in the episode's
 wind under the estimated-state controller, and the camera pipeline is read at every resolution
 factor f (1: per cell; the sensor's binning factor: 2 x 2 block means, read from the binned
-image). Each read-out's error against the ground truth (H z_camera - H truth) is collected per
-(altitude, f). The mean squared error (bias included: the Kalman filter must cover it) is fitted by
-least squares on its logarithm with
+image); then it moves ``second_look_m`` and hovers again for a second look at the same cells.
+The errors of a read-out against the ground truth (e = H z_camera - H truth) split into
+
+* a persistent part, the same at both looks (plant margins and colours that the pipeline gets
+  wrong the same way every time): variance E[e1 e2];
+* a look-to-look part (pixel noise, sampling phase, misregistration, lighting of the moment):
+  variance E[(e1 - e2)^2] / 2.
+
+Measured, the persistent part dominates (errors of two looks correlate at ~0.95). A Kalman filter
+that took the whole error as independent noise R would expect every repeated look to disagree by
+sqrt(2 R) and its innovations would be far smaller than it predicts (NIS << 1). So the belief models
+what the camera sees: R is fitted to the look-to-look part with
 
     sigma^2(h, f) = f^e a (1 - exp(-b h))
 
-(a [field units^2], b [1/m], e [-]), the sensor model of benchmark v1 with the binning exponent
-free. ``--write`` puts a, b (and e, when the installed ``SensorConfig`` has
-``binning_noise_exponent``) into the task file's ``[config.sensor]`` with a comment naming the
-command. The table of measured and fitted values is printed.
+(a [field units^2], b [1/m], e [-]: the sensor model of benchmark v1 with the binning exponent
+free), and the persistent part, averaged over the task's altitudes with their resolution factor, is
+white per-cell variance of the camera-visible field: it joins the GP prior's nugget. ``--write``
+puts a, b, e (e only when the installed ``SensorConfig`` has ``binning_noise_exponent``) and the
+nugget (only when ``GPConfig`` has ``nugget``; the field family's own nugget from ``--field-nugget``
+is added) into the task file with a comment naming the command. The measured and fitted values are
+printed.
 """
 
 from __future__ import annotations
@@ -24,7 +36,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import re
 import sys
 import time
 from dataclasses import dataclass
@@ -40,10 +51,13 @@ class CalibrationResult:
     factors: tuple[int, ...]  # [-] resolution factors
     mse: np.ndarray  # (n_alt, n_f) mean squared error [field units^2]
     bias: np.ndarray  # (n_alt, n_f) mean error [field units]
-    count: np.ndarray  # (n_alt, n_f) number of scalar read-outs
+    persistent: np.ndarray  # (n_alt, n_f) E[e1 e2] of two looks [field units^2]
+    look_to_look: np.ndarray  # (n_alt, n_f) E[(e1 - e2)^2] / 2 [field units^2]
+    count: np.ndarray  # (n_alt, n_f) number of scalar read-out pairs
     a: float
     b: float
     e: float
+    camera_nugget: float  # [field units^2] persistent variance at the task's altitudes
 
     def model(self, h, f) -> np.ndarray:
         return np.asarray(f, float) ** self.e * self.a * (1.0 - np.exp(-self.b * np.asarray(h, float)))
@@ -93,7 +107,7 @@ def calibration_fields(grid, family: str, n: int) -> list[tuple[np.ndarray, int]
 
 
 def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field: int, hover_s: float,
-            image_size: int | None = None, verbose: bool = True) -> CalibrationResult:
+            image_size: int | None = None, verbose: bool = True, second_look_m: float = 1.5) -> CalibrationResult:
     """Flies the calibration and fits the noise model (see the module docstring)."""
     import ipp_bench.envs  # noqa: F401  (registers the tasks)
     from ipp_bench.envs.registry import task_spec
@@ -114,9 +128,20 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
         else:
             sc = dataclasses.replace(cfg.sensor, binning=int(f), binning_altitude=1e-3)
         sensors[f] = Sensor(cfg.grid, sc)
-    errors = {(h, f): [] for h in altitudes for f in factors}
+    pairs = {(h, f): [] for h in altitudes for f in factors}
     width, height = cfg.grid.size_m
     t0 = time.perf_counter()
+
+    def look(f, flat):
+        reading = world.camera(binning=int(f))
+        obs = sensors[f].observe(reading.estimated_xyz)
+        obs = restrict(obs, reading.seen) if obs is not None else None
+        if obs is None:
+            return {}
+        rows = obs.weights @ reading.fraction[obs.cells] - obs.weights @ flat[obs.cells]
+        # key each row by the cells it averages, so that the two looks are matched row by row
+        return {tuple(obs.cells[w > 0].tolist()): float(e) for w, e in zip(obs.weights, rows)}
+
     try:
         for i, (truth, seed) in enumerate(calibration_fields(cfg.grid, cfg.mission.field, n_fields)):
             world.begin_episode(truth, seed)
@@ -127,52 +152,83 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
                     xyz = np.array([rng.uniform(0.15, 0.85) * width, rng.uniform(0.15, 0.85) * height, h])
                     world.flight.reset(xyz)
                     world.flight.hover(hover_s, at=xyz)
+                    first = {f: look(f, flat) for f in factors}
+                    step = rng.normal(size=2)
+                    step *= second_look_m / np.linalg.norm(step)
+                    second_xyz = xyz + np.array([step[0], step[1], 0.0])
+                    world.flight.hover(hover_s, at=second_xyz)
                     for f in factors:
-                        reading = world.camera(binning=int(f))
-                        obs = sensors[f].observe(reading.estimated_xyz)
-                        obs = restrict(obs, reading.seen) if obs is not None else None
-                        if obs is None:
-                            continue
-                        e = obs.weights @ reading.fraction[obs.cells] - obs.weights @ flat[obs.cells]
-                        errors[(h, f)].append(e)
+                        second = look(f, flat)
+                        pairs[(h, f)] += [(e, second[k]) for k, e in first[f].items() if k in second]
             if verbose:
                 print(f"  field {i + 1}/{n_fields} done ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     finally:
         world.close()
     shape = (len(altitudes), len(factors))
-    mse, bias, count = np.zeros(shape), np.zeros(shape), np.zeros(shape, dtype=np.int64)
+    mse, bias, pers, ltl = (np.full(shape, np.nan) for _ in range(4))
+    count = np.zeros(shape, dtype=np.int64)
     for i, h in enumerate(altitudes):
         for j, f in enumerate(factors):
-            e = np.concatenate(errors[(h, f)]) if errors[(h, f)] else np.zeros(0)
-            count[i, j] = e.size
-            mse[i, j] = float(np.mean(e * e)) if e.size else np.nan
-            bias[i, j] = float(np.mean(e)) if e.size else np.nan
-    a, b, e = fit_noise_model(altitudes, factors, mse, count)
-    return CalibrationResult(tuple(float(h) for h in altitudes), tuple(int(f) for f in factors), mse, bias, count,
-                             a, b, e)
+            e = np.array(pairs[(h, f)], dtype=np.float64).reshape(-1, 2)
+            count[i, j] = len(e)
+            if len(e):
+                mse[i, j] = float(np.mean(e * e))
+                bias[i, j] = float(np.mean(e))
+                pers[i, j] = float(np.mean(e[:, 0] * e[:, 1]))
+                ltl[i, j] = float(0.5 * np.mean((e[:, 0] - e[:, 1]) ** 2))
+    a, b, e = fit_noise_model(altitudes, factors, ltl, count)
+    # persistent variance the belief meets: at the task's altitudes, with the sensor's binning rule
+    s_cfg = cfg.sensor
+    weights, values = [], []
+    for alt in cfg.graph.altitudes:
+        f = s_cfg.binning if (alt > s_cfg.binning_altitude and s_cfg.binning > 1) else 1
+        if alt in altitudes and f in factors:
+            i, j = list(altitudes).index(alt), list(factors).index(f)
+            weights.append(count[i, j])
+            values.append(max(pers[i, j], 0.0))
+    if not weights:  # task altitudes not measured: the persistent variance over everything measured
+        ok = count > 0
+        weights, values = count[ok].tolist(), np.maximum(pers[ok], 0.0).tolist()
+    camera_nugget = float(np.average(values, weights=weights))
+    return CalibrationResult(tuple(float(h) for h in altitudes), tuple(int(f) for f in factors), mse, bias, pers,
+                             ltl, count, a, b, e, camera_nugget)
 
 
-def write_task_file(path: str, a: float, b: float, e: float | None, command: str) -> None:
-    """Replaces (or adds) the ``[config.sensor]`` noise constants of a task file, naming the command."""
+def _set_keys(text: str, section: str, values: list[tuple[str, str, str]], command: str) -> str:
+    """``text`` with ``key = value  # comment`` lines set in ``[section]`` (added if missing), after a comment line."""
+    header = f"[{section}]"
+    lines = text.split("\n")
+    if header not in lines:
+        at = lines.index("[config.mission]") if "[config.mission]" in lines else len(lines)
+        lines[at:at] = [header, ""]
+    start = lines.index(header) + 1
+    end = start
+    while end < len(lines) and not lines[end].startswith("["):
+        end += 1
+    keys = {k for k, _, _ in values}
+    mark = f"# fitted by `{command}`"
+    body = [ln for ln in lines[start:end] if ln.split("=")[0].strip() not in keys
+            and not ln.startswith("# fitted by `python -m ipp_bench.sim.calibrate")]
+    while body and not body[-1].strip():
+        body.pop()
+    body += [mark] + [f"{k} = {v}  # {c}" for k, v, c in values] + [""]
+    lines[start:end] = body
+    return "\n".join(lines)
+
+
+def write_task_file(path: str, a: float, b: float, e: float | None, command: str,
+                    nugget: float | None = None) -> None:
+    """Sets the fitted sensor constants (and the nugget) of a task file, with a comment naming the command."""
     with open(path, encoding="utf-8") as fh:
         text = fh.read()
-    lines = [f"# fitted by `{command}`",
-             f"noise_a = {a:.6g}  # [field units^2]",
-             f"noise_b = {b:.6g}  # [1/m]"]
+    sensor = [("noise_a", f"{a:.6g}", "[field units^2] look-to-look camera error a (1 - exp(-b h))"),
+              ("noise_b", f"{b:.6g}", "[1/m]")]
     if e is not None:
-        lines.append(f"binning_noise_exponent = {e:.4g}  # [-] variance factor f^e of a binned read-out")
-    block = "[config.sensor]\n" + "\n".join(lines) + "\n"
-    pattern = re.compile(r"\[config\.sensor\]\n(?:(?!\[).*\n)*", re.MULTILINE)
-    if pattern.search(text):
-        keep = []
-        for line in pattern.search(text).group(0).splitlines()[1:]:
-            key = line.split("=")[0].strip()
-            if key and not line.startswith("#") and key not in ("noise_a", "noise_b", "binning_noise_exponent"):
-                keep.append(line)
-        block = "[config.sensor]\n" + "\n".join(keep + lines) + "\n\n"
-        text = pattern.sub(lambda _m: block, text, count=1)
-    else:
-        text = text.replace("[config.mission]", block + "\n[config.mission]", 1)
+        sensor.append(("binning_noise_exponent", f"{e:.4g}", "[-] variance factor f^e of a binned read-out"))
+    text = _set_keys(text, "config.sensor", sensor, command)
+    if nugget is not None:
+        text = _set_keys(text, "config.gp", [("nugget", f"{nugget:.6g}", "[field units^2] field family's nugget "
+                                               "+ the camera's persistent per-cell error variance")], command)
     with open(path, "w", encoding="utf-8") as fh:
         fh.write(text)
 
@@ -185,6 +241,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--altitudes", default="6,8,10,12,14,16", help="altitudes [m], comma-separated")
     p.add_argument("--factors", default="1,2", help="resolution factors, comma-separated")
     p.add_argument("--hover-s", type=float, default=1.0, help="hover before each read-out [s] (default 1)")
+    p.add_argument("--field-nugget", type=float, default=0.0,
+                   help="the field family's own nugget (from `ipp-bench fit-prior`), added to the camera's [0]")
     p.add_argument("--write", action="store_true", help="write the fitted constants into the task file")
     args = p.parse_args(argv)
     if args.fields < 1 or args.positions < 1:
@@ -195,22 +253,31 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--altitudes must be > 0 m and --factors >= 1")
     res = measure(args.task, altitudes, factors, args.fields, args.positions, args.hover_s)
     print(f"task {args.task}: {args.fields} calibration fields x {args.positions} positions, hover {args.hover_s} s")
-    print(f"{'h [m]':>6} {'f':>2} | {'n':>6} {'bias':>8} {'mse':>9} {'fit':>9}")
+    print(f"{'h [m]':>6} {'f':>2} | {'pairs':>6} {'bias':>8} {'mse':>9} {'persist':>9} {'look2look':>9} "
+          f"{'R fit':>9} {'corr':>5}")
     for i, h in enumerate(res.altitudes):
         for j, f in enumerate(res.factors):
+            corr = res.persistent[i, j] / res.mse[i, j] if res.mse[i, j] > 0 else float("nan")
             print(f"{h:6.1f} {f:2d} | {res.count[i, j]:6d} {res.bias[i, j]:+8.4f} {res.mse[i, j]:9.5f} "
-                  f"{float(res.model(h, f)):9.5f}")
-    print(f"fit: sigma^2(h, f) = f^{res.e:.3f} * {res.a:.5g} * (1 - exp(-{res.b:.4g} h))")
+                  f"{res.persistent[i, j]:9.5f} {res.look_to_look[i, j]:9.5f} {float(res.model(h, f)):9.5f} "
+                  f"{corr:5.2f}")
+    print(f"R fit (look-to-look): sigma^2(h, f) = f^{res.e:.3f} * {res.a:.5g} * (1 - exp(-{res.b:.4g} h))")
+    print(f"persistent camera error at the task's altitudes (joins the nugget): {res.camera_nugget:.5g}")
     if args.write:
         from ipp_bench.config import SensorConfig
         from ipp_bench.envs.registry import task_spec
 
+        from ipp_bench.config import GPConfig
+
         has_e = any(fl.name == "binning_noise_exponent" for fl in dataclasses.fields(SensorConfig))
+        has_nugget = any(fl.name == "nugget" for fl in dataclasses.fields(GPConfig))
         command = ("python -m ipp_bench.sim.calibrate " + " ".join(argv if argv is not None else sys.argv[1:])).strip()
         path = task_spec(args.task).source
-        write_task_file(path, res.a, res.b, res.e if has_e else None, command)
-        print(f"wrote {path}" + ("" if has_e else " (binning exponent not written: SensorConfig has no "
-                                                    "binning_noise_exponent field here)"))
+        nugget = args.field_nugget + res.camera_nugget if has_nugget else None
+        write_task_file(path, res.a, res.b, res.e if has_e else None, command, nugget)
+        print(f"wrote {path}" + ("" if has_e else "; binning exponent not written (no SensorConfig."
+                                                    "binning_noise_exponent here)")
+              + ("" if has_nugget else "; nugget not written (no GPConfig.nugget here)"))
     return 0
 
 

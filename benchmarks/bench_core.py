@@ -1,6 +1,7 @@
 """Speed of the IPP model: GP update, env step and observation build at growing map sizes.
 
-Prints figures, never pass/fail. Run: ``python benchmarks/bench_core.py [--sizes 15 20 30 50]``.
+Prints figures, never pass/fail. Run: ``python benchmarks/bench_core.py [--sizes 15 20 30 50]
+[--task ipp_bench/Grid15Eval-v1]`` (the task's settings at each size).
 Medians over many repetitions; compare ratios measured in one run (the machine is noisy).
 """
 
@@ -27,9 +28,9 @@ def median_time(fn, repeat: int) -> float:
     return float(np.median(ts))
 
 
-def bench_size(n: int, steps: int) -> dict[str, float]:
+def bench_size(task: str, n: int, steps: int) -> dict[str, float]:
     t0 = time.perf_counter()
-    env = gym.make("ipp_bench/Grid15Eval-v0", rows=n, cols=n, budget_s=1e6).unwrapped
+    env = gym.make(task, rows=n, cols=n, budget_s=1e6).unwrapped
     build_s = time.perf_counter() - t0
     obs, _ = env.reset(seed=0)
     mission = env.mission
@@ -60,6 +61,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--sizes", type=int, nargs="+", default=[15, 20, 30, 50])
     parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--task", default="ipp_bench/Grid15Eval-v1", help="task whose settings are resized")
     args = parser.parse_args()
     limit_blas_threads()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
@@ -67,7 +69,7 @@ def main() -> None:
     print(f"{'grid':>6} {'cells':>6} {'nodes':>6} {'build s':>8} {'upd 8m us':>10} {'upd 14m us':>11} "
           f"{'step ms':>8} {'p90 ms':>7} {'obs ms':>7}")
     for n in args.sizes:
-        r = bench_size(n, args.steps)
+        r = bench_size(args.task, n, args.steps)
         print(f"{n:>3}x{n:<2} {r['n_cells']:>6} {r['n_nodes']:>6} {r['env_build_s']:>8.2f} "
               f"{r['gp_update_8m_us']:>10.0f} {r['gp_update_14m_us']:>11.0f} {r['env_step_ms']:>8.3f} "
               f"{r['env_step_p90_ms']:>7.3f} {r['observation_ms']:>7.3f}", flush=True)

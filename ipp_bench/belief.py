@@ -27,6 +27,15 @@ def cell_centres(shape: tuple[int, int], resolution: float) -> np.ndarray:
     return np.stack([(c + 0.5) * resolution, (r + 0.5) * resolution], axis=1).astype(np.float64)
 
 
+def prior_covariance(xy: np.ndarray, length_scale: float, signal_variance: float,
+                     nugget: float = 0.0) -> np.ndarray:
+    """Matern 3/2 kernel matrix over points ``xy`` [m], plus ``nugget`` on the diagonal."""
+    cov = matern32(cdist(xy, xy), length_scale, signal_variance)
+    if nugget:
+        cov[np.diag_indices_from(cov)] += nugget
+    return cov
+
+
 RESYMMETRISE_EVERY = 32  # updates between exact re-symmetrisations (round-off is ~1e-17 each)
 
 
@@ -134,11 +143,18 @@ class GPBelief:
     @classmethod
     def from_grid(cls, shape: tuple[int, int] = (15, 15), resolution: float = 2.5,
                   length_scale: float = 3.67, signal_variance: float = 1.82,
-                  prior_mean: float = 0.5) -> GPBelief:
-        """Prior over a rows x cols grid: mean ``prior_mean``, covariance the Matern 3/2 kernel."""
+                  prior_mean: float = 0.5, nugget: float = 0.0) -> GPBelief:
+        """Prior over a rows x cols grid: mean ``prior_mean``, covariance the Matern 3/2 kernel
+        plus ``nugget`` [field units^2] on the diagonal (independent per-cell variation)."""
         xy = cell_centres(shape, resolution)
-        cov = matern32(cdist(xy, xy), length_scale, signal_variance)
+        cov = prior_covariance(xy, length_scale, signal_variance, nugget)
         return cls(np.full(xy.shape[0], float(prior_mean)), cov, shape=tuple(shape))
+
+    @classmethod
+    def prior(cls, grid, gp) -> GPBelief:
+        """The prior of a :class:`~ipp_bench.config.GridConfig` and :class:`~ipp_bench.config.GPConfig`."""
+        return cls.from_grid((grid.rows, grid.cols), grid.resolution, gp.length_scale,
+                             gp.signal_variance, gp.prior_mean, gp.nugget)
 
     @property
     def n(self) -> int:
@@ -212,4 +228,4 @@ class GPBelief:
         return other
 
 
-__all__ = ["GPBelief", "matern32", "cell_centres"]
+__all__ = ["GPBelief", "matern32", "cell_centres", "prior_covariance"]

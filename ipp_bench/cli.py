@@ -3,6 +3,7 @@
 Subcommands::
 
     ipp-bench tasks                                     registered tasks and their tags
+    ipp-bench fit-prior --task T [--write]              fit the task's GP prior to its field family
     ipp-bench evaluate --task T --planner P --seed S    one episode, its metrics (--render out.png)
     ipp-bench leaderboard [--quick] [--out DIR] ...     every planner on every benchmark task
     ipp-bench train ...                                 train the attention policy   (extra [train])
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import shlex
 import sys
 from collections.abc import Sequence
@@ -52,6 +54,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("tasks", help="list the registered tasks and their tags",
                    description="List the registered tasks with their tags.")
+
+    fp = sub.add_parser("fit-prior", help="fit a task's GP prior to its field family (log marginal likelihood)",
+                        description="Fit the Matern 3/2 prior (length scale, signal variance, nugget; mean fixed) "
+                                    "to independent maps of the task's field family by maximising the log "
+                                    "marginal likelihood, as the paper did (Section V-A).")
+    fp.add_argument("--task", required=True, help="task id, e.g. ipp_bench/Grid15Eval-v1 (prefix optional)")
+    fp.add_argument("--maps", type=int, default=None, help="independent maps to fit on (default 40)")
+    fp.add_argument("--seed", type=int, default=None, help="seed of the fitting maps (default: the fixed fit seed)")
+    fp.add_argument("--write", action="store_true",
+                    help="write the fitted values into the task's TOML file, with this command as a comment")
 
     ev = sub.add_parser("evaluate", help="run one episode and print its metrics",
                         description="Run one episode of one planner on one task and print its metrics.")
@@ -104,6 +116,43 @@ def cmd_tasks(args: argparse.Namespace) -> int:
         mission, grid = spec.config.mission, spec.config.grid
         print(f"{task_id:<{width}}  tags: {', '.join(spec.tags) or '-':<10}  "
               f"{grid.rows}x{grid.cols} cells, {mission.field} fields, budget {mission.budget_s:g} s")
+    return 0
+
+
+def cmd_fit_prior(args: argparse.Namespace) -> int:
+    from . import gp_fit
+    from .eval.leaderboard import resolve_task
+    from .envs import task_spec
+
+    maps = gp_fit.DEFAULT_MAPS if args.maps is None else args.maps
+    seed = gp_fit.FIT_SEED if args.seed is None else args.seed
+    try:
+        spec = task_spec(resolve_task(args.task))
+        if maps < 2:
+            raise ValueError(f"--maps = {maps} is invalid: expected an integer >= 2")
+        if seed < 0:
+            raise ValueError(f"--seed = {seed} is invalid: expected an integer >= 0")
+        if args.write and not os.access(spec.source, os.W_OK):
+            raise ValueError(f"--write: the task file {spec.source} is not writable")
+    except ValueError as err:
+        return _error(str(err))
+    cfg = spec.config
+    print(f"{spec.id}: fitting a Matern 3/2 prior to {maps} {cfg.mission.field} maps of "
+          f"{cfg.grid.rows} x {cfg.grid.cols} cells (seed {seed}, prior mean {cfg.gp.prior_mean:g} fixed)", flush=True)
+    fit = gp_fit.fit_prior(cfg, maps, seed)
+    held = gp_fit.held_out_lml(cfg, fit.length_scale, fit.signal_variance, fit.nugget)
+    task_gp = cfg.gp
+    held_task = gp_fit.held_out_lml(cfg, task_gp.length_scale, task_gp.signal_variance, max(task_gp.nugget, 1e-9))
+    print(f"  length_scale    {fit.length_scale:.4g} m\n  signal_variance {fit.signal_variance:.4g}\n"
+          f"  nugget          {fit.nugget:.4g}\n  log marginal likelihood per map: {fit.lml_per_map:.2f} (fit maps), "
+          f"{held:.2f} (held-out maps; the task file's current prior: {held_task:.2f})")
+    if fit.length_scale > 100.0 and fit.nugget > fit.signal_variance:
+        print("  note: the maps have no spatial structure at this scale (the nugget holds the variance)")
+    if args.write:
+        command = f"ipp-bench fit-prior --task {spec.id}" + ("" if args.maps is None else f" --maps {maps}") \
+            + ("" if args.seed is None else f" --seed {seed}") + " --write"
+        gp_fit.write_gp_section(spec.source, fit, command)
+        print(f"wrote [config.gp] of {spec.source}")
     return 0
 
 
@@ -191,6 +240,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command == "tasks":
         return cmd_tasks(args)
+    if args.command == "fit-prior":
+        return cmd_fit_prior(args)
     if args.command == "evaluate":
         return cmd_evaluate(args)
     if args.command == "leaderboard":

@@ -72,22 +72,31 @@ class GPConfig:
     length_scale: float = 3.67  # [m]
     signal_variance: float = 1.82  # [field units^2]
     prior_mean: float = 0.5  # [field units]
+    nugget: float = 0.0  # [field units^2] independent per-cell variance added to the prior diagonal
 
     def __post_init__(self) -> None:
         _positive("gp", "length_scale", self.length_scale)
         _positive("gp", "signal_variance", self.signal_variance)
         _finite("gp", "prior_mean", self.prior_mean)
+        if _finite("gp", "nugget", self.nugget) < 0:
+            _fail("gp", "nugget", self.nugget, "a finite number >= 0")
 
 
 @dataclass(frozen=True)
 class SensorConfig:
-    """Downward square camera with altitude-dependent noise a (1 - exp(-b h))."""
+    """Downward square camera with altitude-dependent noise f^e a (1 - exp(-b h)).
+
+    f is the resolution factor of the read-out (``binning`` above ``binning_altitude``, else 1) and
+    e is ``binning_noise_exponent``: 0 in the v0 tasks (the paper states no such factor), 3 in v1
+    (the lineage's code, ipp-rl ``measurement_variance_matrix``: a 2 x 2 block mean is 8x noisier).
+    """
 
     fov_deg: float = 60.0  # [deg] full field of view of the square image
     noise_a: float = 0.05  # [field units^2]
     noise_b: float = 0.2  # [1/m]
     binning_altitude: float = 10.0  # [m] above this, measurements average binning x binning cells
     binning: int = 2  # [cells] block side of the coarse read-out
+    binning_noise_exponent: float = 0.0  # [-] e in f^e: noise growth of a binned read-out
 
     def __post_init__(self) -> None:
         v = _finite("sensor", "fov_deg", self.fov_deg)
@@ -97,6 +106,9 @@ class SensorConfig:
         _positive("sensor", "noise_b", self.noise_b)
         _positive("sensor", "binning_altitude", self.binning_altitude)
         _integer("sensor", "binning", self.binning, 1)
+        e = _finite("sensor", "binning_noise_exponent", self.binning_noise_exponent)
+        if not 0.0 <= e <= 6.0:
+            _fail("sensor", "binning_noise_exponent", self.binning_noise_exponent, "a number in [0, 6]")
 
 
 @dataclass(frozen=True)
@@ -143,6 +155,10 @@ class MissionConfig:
     beta: float = 1.0  # [-] belief ROI: mu + beta sigma >= mu_th
     report_times: tuple[float, ...] = (50.0, 100.0, 150.0, 200.0)  # [s] metrics read-out times
     measure_at_start: bool = True  # take one measurement at the start position at t = 0
+    # [-] half-open range [lo, hi) of this task's episode seeds: reset(seed=s) plays episode seed
+    # lo + s mod (hi - lo). Evaluation tasks use [0, 2^31) (every seed the leaderboard draws),
+    # training tasks [2^31, 2^32), so no training episode is ever an evaluation episode
+    episode_seeds: tuple[int, int] = (0, 2**63)
 
     def __post_init__(self) -> None:
         _positive("mission", "budget_s", self.budget_s)
@@ -174,6 +190,12 @@ class MissionConfig:
         object.__setattr__(self, "report_times", tuple(float(t) for t in times))
         if not isinstance(self.measure_at_start, bool):
             _fail("mission", "measure_at_start", self.measure_at_start, "True or False")
+        seeds = self.episode_seeds
+        if (not isinstance(seeds, (list, tuple)) or len(seeds) != 2
+                or not all(isinstance(v, int) and not isinstance(v, bool) for v in seeds)
+                or not 0 <= seeds[0] < seeds[1] <= 2**63):
+            _fail("mission", "episode_seeds", seeds, "two integers lo < hi in [0, 2^63]")
+        object.__setattr__(self, "episode_seeds", (int(seeds[0]), int(seeds[1])))
 
 
 _SECTIONS = ("grid", "gp", "sensor", "graph", "mission")

@@ -88,9 +88,7 @@ class Mission:
         self._truth_flat = truth.reshape(-1)
         self.rng = rng
         self.sensor = Sensor(g, config.sensor)
-        self.belief = belief if belief is not None else GPBelief.from_grid(
-            (g.rows, g.cols), g.resolution, config.gp.length_scale, config.gp.signal_variance,
-            config.gp.prior_mean)
+        self.belief = belief if belief is not None else GPBelief.prior(g, config.gp)
         self.position = self.check_position(start_xyz)
         self.time_s = 0.0
         self.distance_m = 0.0

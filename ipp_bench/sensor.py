@@ -4,7 +4,9 @@ A square field of view of ``fov_deg`` pointing down sees a square footprint of s
 ``2 h tan(fov / 2)``; the cells whose centres fall inside it (clipped to the map) are observed.
 Noise variance grows with altitude as ``a (1 - exp(-b h))``. Above ``binning_altitude`` the image
 is read at a coarser resolution: each measurement averages a ``binning x binning`` block of the
-footprint's cells (1/4 on each for 2 x 2; edge blocks average the cells they have).
+footprint's cells (1/4 on each for 2 x 2; edge blocks average the cells they have), and its noise
+variance is multiplied by ``f^e`` (f = ``binning``, e = ``binning_noise_exponent``: 0 in v0, 3 in
+v1 as in the lineage's code).
 """
 
 from __future__ import annotations
@@ -75,8 +77,15 @@ class Sensor:
         return 2.0 * float(altitude) * self._tan
 
     def noise_variance(self, altitude: float) -> float:
-        """Measurement noise variance a (1 - exp(-b h)) at ``altitude`` [m]."""
-        return self.cfg.noise_a * (1.0 - math.exp(-self.cfg.noise_b * float(altitude)))
+        """Noise variance f^e a (1 - exp(-b h)) of one read-out at ``altitude`` [m].
+
+        f is the resolution factor (``binning`` when the read-out is binned, else 1).
+        """
+        cfg = self.cfg
+        var = cfg.noise_a * (1.0 - math.exp(-cfg.noise_b * float(altitude)))
+        if self.binned(altitude) and cfg.binning_noise_exponent:
+            var *= float(cfg.binning) ** cfg.binning_noise_exponent
+        return var
 
     def binned(self, altitude: float) -> bool:
         return float(altitude) > self.cfg.binning_altitude and self.cfg.binning > 1

@@ -10,6 +10,8 @@ BAD = [
     (GridConfig, "rows", 1), (GridConfig, "rows", 2.5), (GridConfig, "cols", 0),
     (GridConfig, "resolution", 0.0), (GridConfig, "resolution", float("nan")),
     (GPConfig, "length_scale", -1.0), (GPConfig, "signal_variance", 0.0), (GPConfig, "prior_mean", float("inf")),
+    (GPConfig, "nugget", -1e-3), (SensorConfig, "binning_noise_exponent", -1.0),
+    (SensorConfig, "binning_noise_exponent", float("nan")),
     (SensorConfig, "fov_deg", 0.0), (SensorConfig, "fov_deg", 180.0), (SensorConfig, "noise_a", 0.0),
     (SensorConfig, "noise_b", -0.2), (SensorConfig, "binning_altitude", 0.0), (SensorConfig, "binning", 0),
     (GraphConfig, "altitudes", ()), (GraphConfig, "altitudes", (14.0, 8.0)), (GraphConfig, "altitudes", (0.0, 8.0)),
@@ -20,6 +22,8 @@ BAD = [
     (MissionConfig, "start", (1, 2)), (MissionConfig, "start", (1, 2, 0.0)), (MissionConfig, "field", "gas"),
     (MissionConfig, "mu_th", float("nan")), (MissionConfig, "beta", -1.0), (MissionConfig, "report_times", ()),
     (MissionConfig, "report_times", (100.0, 50.0)), (MissionConfig, "measure_at_start", 1),
+    (MissionConfig, "episode_seeds", (5, 5)), (MissionConfig, "episode_seeds", (-1, 3)),
+    (MissionConfig, "episode_seeds", (0.0, 3)),
 ]
 
 

@@ -27,10 +27,45 @@ def rollout(env, seed, steps=25):
 
 
 def test_registry_has_the_paper_tasks():
-    assert {"ipp_bench/Grid15-v0", "ipp_bench/Grid15Eval-v0", "ipp_bench/Grid20Eval-v0"} <= set(envs.TASKS)
+    v0 = {"ipp_bench/Grid15-v0", "ipp_bench/Grid15Eval-v0", "ipp_bench/Grid20Eval-v0"}
+    assert v0 <= set(tagged("v0"))
     assert "ipp_bench/Grid15-v0" in tagged("train")
-    assert {"ipp_bench/Grid15Eval-v0", "ipp_bench/Grid20Eval-v0"} <= set(tagged("benchmark"))
-    envs.register_all()  # idempotent
+    assert set(tagged("benchmark")) == {"ipp_bench/Grid15Eval-v1", "ipp_bench/Grid20Eval-v1", "ipp_bench/Grid30Eval-v1"}
+    assert {"ipp_bench/Grid15Train-v1", "ipp_bench/Grid30Train-v1"} <= set(tagged("train"))
+
+
+def test_registration_is_idempotent():
+    before = {k: gym.registry[k] for k in envs.TASKS}
+    envs.register_all()
+    assert {k: gym.registry[k] for k in envs.TASKS} == before
+
+
+def test_import_ipp_bench_registers_the_tasks():
+    import subprocess
+    import sys
+    code = ("import gymnasium as gym, ipp_bench; gym.register_envs(ipp_bench); "
+            "e = gym.make('ipp_bench/Grid15Eval-v1'); print(e.unwrapped.config.grid.rows)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "15"
+
+
+def test_training_seeds_never_meet_evaluation_seeds():
+    """Every v1 training task plays episode seeds that no evaluation task (nor the leaderboard) can."""
+    from ipp_bench.eval.leaderboard import episode_seeds
+    train = [envs.TASKS[t].config.mission.episode_seeds for t in tagged("train") if "v1" in envs.TASKS[t].tags]
+    evals = [envs.TASKS[t].config.mission.episode_seeds for t in tagged("benchmark")]
+    assert train and evals
+    for lo, hi in train:
+        for elo, ehi in evals:
+            assert hi <= elo or ehi <= lo, f"training seeds [{lo}, {hi}) overlap evaluation [{elo}, {ehi})"
+    drawn = episode_seeds(0, 1000) + episode_seeds(12345, 1000)
+    assert all(elo <= s < ehi for s in drawn for elo, ehi in evals)
+    env = gym.make("ipp_bench/Grid15Train-v1").unwrapped
+    played = [env.reset(seed=s)[1]["episode_seed"] for s in (0, 7, 2**31 - 1, None, None)]
+    lo, hi = env.config.mission.episode_seeds
+    assert all(lo <= s < hi for s in played)
+    ev = gym.make("ipp_bench/Grid15Eval-v1").unwrapped
+    assert not np.array_equal(env.reset(seed=7)[0]["node_features"], ev.reset(seed=7)[0]["node_features"])
 
 
 @pytest.mark.parametrize("task", GRAPH_TASKS)

@@ -79,3 +79,17 @@ def test_stack_joins_observations(sensor):
 def test_nonpositive_altitude_is_an_error(sensor):
     with pytest.raises(ValueError, match="above the ground"):
         sensor.observe((5.0, 5.0, 0.0))
+
+
+@pytest.mark.parametrize("e", [0.0, 3.0])
+def test_binned_noise_is_f_to_the_e_times_the_altitude_law(e):
+    """The lineage's law: a read-out at resolution factor f has variance f^e a (1 - e^{-bh})."""
+    sensor = Sensor(GridConfig(15, 15, 2.5), SensorConfig(binning_noise_exponent=e))
+    law = {h: 0.05 * (1 - math.exp(-0.2 * h)) for h in (8.0, 14.0)}
+    assert sensor.noise_variance(8.0) == pytest.approx(law[8.0])  # f = 1 below 10 m
+    assert sensor.noise_variance(14.0) == pytest.approx(2.0 ** e * law[14.0])
+    if e == 3.0:  # the figures of REFERENCE.md: 0.040 at 8 m, 0.376 for a 14 m block mean
+        assert sensor.noise_variance(8.0) == pytest.approx(0.0399, abs=1e-4)
+        assert sensor.noise_variance(14.0) == pytest.approx(0.3757, abs=1e-4)
+    obs = sensor.observe((18.75, 18.75, 14.0))
+    np.testing.assert_allclose(obs.var, 2.0 ** e * law[14.0])

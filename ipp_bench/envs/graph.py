@@ -60,7 +60,11 @@ class GraphIPPEnv(gym.Env):
     thread per process (``IPP_BENCH_BLAS_THREADS`` overrides; see ``ipp_bench._threads``).
 
     ## Version History
-    - v0: initial release.
+    - v1 (benchmark v1): GP prior fitted to the field family (``ipp-bench fit-prior``), the
+      lineage's f^3 noise of binned read-outs, a 30 x 30 task, training tasks on episode seeds
+      disjoint from the evaluation seeds (``mission.episode_seeds``); ``reset(seed=s)`` plays the
+      task's episode seed ``lo + s mod (hi - lo)``, reported as ``info["episode_seed"]``.
+    - v0: initial release (the paper's constants).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -98,6 +102,7 @@ class GraphIPPEnv(gym.Env):
         self.action_space = spaces.Discrete(k)
         self.mission: Mission | None = None
         self.current_node = 0
+        self.episode_seed: int | None = None
 
     # -- construction -------------------------------------------------------------------------
     def _footprint_matrix(self) -> sparse.csr_matrix:
@@ -123,7 +128,16 @@ class GraphIPPEnv(gym.Env):
 
         ``options={"start_node": i}`` starts at node i instead of the configured start.
         """
+        lo, hi = self.config.mission.episode_seeds
+        if seed is None:  # every episode has a seed (info["episode_seed"]) that replays it
+            if self._np_random is None:
+                super().reset(seed=None)
+            seed = int(self.np_random.integers(hi - lo))
+        elif not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+            raise ValueError(f"seed = {seed!r} is invalid: expected an integer >= 0 or None")
+        seed = lo + int(seed) % (hi - lo)  # the task's episode seeds (mission.episode_seeds)
         super().reset(seed=seed)
+        self.episode_seed = int(seed)
         field_seed, start_seed, noise_seed = self.np_random.integers(0, 2**63 - 1, size=3)
         truth = make_field(self.config.mission.field, self.config.grid, np.random.default_rng(field_seed))
         start = self.config.mission.start
@@ -204,5 +218,6 @@ class GraphIPPEnv(gym.Env):
 
     def _info(self, reward: float, trace_belief: float) -> dict[str, Any]:
         info = self.mission.metrics()
-        info.update(reward_info_gain=reward, trace_roi_belief=trace_belief, node=self.current_node)
+        info.update(reward_info_gain=reward, trace_roi_belief=trace_belief, node=self.current_node,
+                    episode_seed=self.episode_seed)
         return info

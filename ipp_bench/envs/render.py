@@ -54,7 +54,7 @@ def render_mission(mission, size: int = 240) -> np.ndarray:
     px = max(2, size // max(g.rows, g.cols))
     shape = (g.rows, g.cols)
     std = np.sqrt(mission.belief.variance).reshape(shape)
-    prior_std = np.sqrt(mission.config.gp.signal_variance)
+    prior_std = np.sqrt(mission.config.gp.signal_variance + mission.config.gp.nugget)
     panels = [
         _panel(mission.truth, px, 0.0, 1.0),
         _panel(mission.belief.mean.reshape(shape), px, 0.0, 1.0),

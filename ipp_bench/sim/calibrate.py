@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 CALIBRATION_KEY = 0x1BB_CA1  # first word of every calibration field's SeedSequence
+E_RANGE = (0.0, 6.0)  # valid SensorConfig.binning_noise_exponent
 
 
 @dataclass(frozen=True)
@@ -58,12 +59,13 @@ class CalibrationResult:
     b: float
     e: float
     camera_nugget: float  # [field units^2] persistent variance at the task's altitudes
+    e_free: float  # [-] the exponent fitted without SensorConfig's range
 
     def model(self, h, f) -> np.ndarray:
         return np.asarray(f, float) ** self.e * self.a * (1.0 - np.exp(-self.b * np.asarray(h, float)))
 
 
-def fit_noise_model(altitudes, factors, mse, count=None) -> tuple[float, float, float]:
+def fit_noise_model(altitudes, factors, mse, count=None, e_range=(-4.0, 8.0)) -> tuple[float, float, float]:
     """Least-squares fit of log mse(h, f) = e log f + log a + log(1 - exp(-b h)); returns (a, b, e).
 
     Weighted by the read-out counts (the log of a mean of n squares has variance ~2 / n).
@@ -86,7 +88,9 @@ def fit_noise_model(altitudes, factors, mse, count=None) -> tuple[float, float, 
     y0 = float(np.mean(y[ok]))
     best = None
     for lb0 in (math.log(0.02), math.log(0.2), math.log(1.0)):
-        r = least_squares(residual, x0=[y0, lb0, 1.0], bounds=([-30.0, math.log(1e-4), -4.0], [5.0, math.log(10.0), 8.0]))
+        e0 = min(max(1.0, e_range[0]), e_range[1])
+        r = least_squares(residual, x0=[y0, lb0, e0],
+                          bounds=([-30.0, math.log(1e-4), e_range[0]], [5.0, math.log(10.0), e_range[1] + 1e-12]))
         if best is None or r.cost < best.cost:
             best = r
     la, lb, e = best.x
@@ -133,14 +137,18 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
     t0 = time.perf_counter()
 
     def look(f, flat):
+        """Rows (cells, weights) of the read-out at f and their errors; the reading for the second look."""
         reading = world.camera(binning=int(f))
         obs = sensors[f].observe(reading.estimated_xyz)
         obs = restrict(obs, reading.seen) if obs is not None else None
         if obs is None:
-            return {}
-        rows = obs.weights @ reading.fraction[obs.cells] - obs.weights @ flat[obs.cells]
-        # key each row by the cells it averages, so that the two looks are matched row by row
-        return {tuple(obs.cells[w > 0].tolist()): float(e) for w, e in zip(obs.weights, rows)}
+            return [], reading
+        errors = obs.weights @ reading.fraction[obs.cells] - obs.weights @ flat[obs.cells]
+        return [(obs.cells[w > 0], w[w > 0], float(e)) for w, e in zip(obs.weights, errors)], reading
+
+    def again(rows, reading, flat):
+        """The same rows (same cells, same weights) read from the second look's per-cell fractions."""
+        return [(e1, float(w @ reading.fraction[c] - w @ flat[c])) for c, w, e1 in rows if reading.seen[c].all()]
 
     try:
         for i, (truth, seed) in enumerate(calibration_fields(cfg.grid, cfg.mission.field, n_fields)):
@@ -152,14 +160,13 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
                     xyz = np.array([rng.uniform(0.15, 0.85) * width, rng.uniform(0.15, 0.85) * height, h])
                     world.flight.reset(xyz)
                     world.flight.hover(hover_s, at=xyz)
-                    first = {f: look(f, flat) for f in factors}
+                    first = {f: look(f, flat)[0] for f in factors}
                     step = rng.normal(size=2)
                     step *= second_look_m / np.linalg.norm(step)
                     second_xyz = xyz + np.array([step[0], step[1], 0.0])
                     world.flight.hover(hover_s, at=second_xyz)
                     for f in factors:
-                        second = look(f, flat)
-                        pairs[(h, f)] += [(e, second[k]) for k, e in first[f].items() if k in second]
+                        pairs[(h, f)] += again(first[f], look(f, flat)[1], flat)
             if verbose:
                 print(f"  field {i + 1}/{n_fields} done ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     finally:
@@ -176,7 +183,8 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
                 bias[i, j] = float(np.mean(e))
                 pers[i, j] = float(np.mean(e[:, 0] * e[:, 1]))
                 ltl[i, j] = float(0.5 * np.mean((e[:, 0] - e[:, 1]) ** 2))
-    a, b, e = fit_noise_model(altitudes, factors, ltl, count)
+    a, b, e = fit_noise_model(altitudes, factors, ltl, count, E_RANGE)
+    e_free = fit_noise_model(altitudes, factors, ltl, count)[2]
     # persistent variance the belief meets: at the task's altitudes, with the sensor's binning rule
     s_cfg = cfg.sensor
     weights, values = [], []
@@ -191,7 +199,7 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
         weights, values = count[ok].tolist(), np.maximum(pers[ok], 0.0).tolist()
     camera_nugget = float(np.average(values, weights=weights))
     return CalibrationResult(tuple(float(h) for h in altitudes), tuple(int(f) for f in factors), mse, bias, pers,
-                             ltl, count, a, b, e, camera_nugget)
+                             ltl, count, a, b, e, camera_nugget, e_free)
 
 
 def _set_keys(text: str, section: str, values: list[tuple[str, str, str]], command: str) -> str:
@@ -224,7 +232,7 @@ def write_task_file(path: str, a: float, b: float, e: float | None, command: str
     sensor = [("noise_a", f"{a:.6g}", "[field units^2] look-to-look camera error a (1 - exp(-b h))"),
               ("noise_b", f"{b:.6g}", "[1/m]")]
     if e is not None:
-        sensor.append(("binning_noise_exponent", f"{e:.4g}", "[-] variance factor f^e of a binned read-out"))
+        sensor.append(("binning_noise_exponent", f"{round(e, 3) + 0.0:g}", "[-] variance factor f^e of a binned read-out"))
     text = _set_keys(text, "config.sensor", sensor, command)
     if nugget is not None:
         text = _set_keys(text, "config.gp", [("nugget", f"{nugget:.6g}", "[field units^2] field family's nugget "
@@ -241,8 +249,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--altitudes", default="6,8,10,12,14,16", help="altitudes [m], comma-separated")
     p.add_argument("--factors", default="1,2", help="resolution factors, comma-separated")
     p.add_argument("--hover-s", type=float, default=1.0, help="hover before each read-out [s] (default 1)")
-    p.add_argument("--field-nugget", type=float, default=0.0,
-                   help="the field family's own nugget (from `ipp-bench fit-prior`), added to the camera's [0]")
+    p.add_argument("--field-nugget", type=float, default=None,
+                   help="the field family's own nugget, added to the camera's (default: refit as `ipp-bench "
+                        "fit-prior` does, so that the two commands compose in either order)")
     p.add_argument("--write", action="store_true", help="write the fitted constants into the task file")
     args = p.parse_args(argv)
     if args.fields < 1 or args.positions < 1:
@@ -261,7 +270,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{h:6.1f} {f:2d} | {res.count[i, j]:6d} {res.bias[i, j]:+8.4f} {res.mse[i, j]:9.5f} "
                   f"{res.persistent[i, j]:9.5f} {res.look_to_look[i, j]:9.5f} {float(res.model(h, f)):9.5f} "
                   f"{corr:5.2f}")
-    print(f"R fit (look-to-look): sigma^2(h, f) = f^{res.e:.3f} * {res.a:.5g} * (1 - exp(-{res.b:.4g} h))")
+    print(f"R fit (look-to-look): sigma^2(h, f) = f^{res.e:.3f} * {res.a:.5g} * (1 - exp(-{res.b:.4g} h)) "
+          f"(e in SensorConfig's range {E_RANGE}; without that range e = {res.e_free:.3f})")
     print(f"persistent camera error at the task's altitudes (joins the nugget): {res.camera_nugget:.5g}")
     if args.write:
         from ipp_bench.config import SensorConfig
@@ -272,8 +282,17 @@ def main(argv: list[str] | None = None) -> int:
         has_e = any(fl.name == "binning_noise_exponent" for fl in dataclasses.fields(SensorConfig))
         has_nugget = any(fl.name == "nugget" for fl in dataclasses.fields(GPConfig))
         command = ("python -m ipp_bench.sim.calibrate " + " ".join(argv if argv is not None else sys.argv[1:])).strip()
-        path = task_spec(args.task).source
-        nugget = args.field_nugget + res.camera_nugget if has_nugget else None
+        spec = task_spec(args.task)
+        path = spec.source
+        nugget = None
+        if has_nugget:
+            field_nugget = args.field_nugget
+            if field_nugget is None:
+                from ipp_bench import gp_fit
+
+                field_nugget = gp_fit.fit_prior(spec.config, gp_fit.DEFAULT_MAPS, gp_fit.FIT_SEED).nugget
+            nugget = field_nugget + res.camera_nugget
+            print(f"nugget = {field_nugget:.4g} (field family) + {res.camera_nugget:.4g} (camera, persistent)")
         write_task_file(path, res.a, res.b, res.e if has_e else None, command, nugget)
         print(f"wrote {path}" + ("" if has_e else "; binning exponent not written (no SensorConfig."
                                                     "binning_noise_exponent here)")

@@ -3,7 +3,7 @@
 MuJoCo renders the scene as the lens would see it under the episode's sun; :class:`CameraModel`
 then applies, in the order a camera does:
 
-1. optics: a Gaussian point-spread function (lens + demosaicing, ``psf_sigma_px``) and, where the
+1. optics (on the 8-bit frame): a Gaussian point-spread function (lens + demosaicing, ``psf_sigma_px``) and, where the
    image moves by at least half a pixel during the exposure, a linear motion-blur kernel along the
    image-plane motion (translation over the ground and rotation of the airframe);
 2. pixel binning above the sensor's binning altitude (``cv2.resize(..., INTER_AREA)`` by the
@@ -123,18 +123,27 @@ def form_image(frame: np.ndarray, model: CameraModel, cond: EpisodeConditions, r
     Returns:
         (S / binning, S / binning, 3) uint8.
     """
-    img = frame.astype(np.float32)
+    img = frame
     if model.psf_sigma_px > 0.0:
         img = cv2.GaussianBlur(img, (0, 0), model.psf_sigma_px)
     if math.hypot(*blur_px) >= 0.5:
         img = cv2.filter2D(img, -1, _motion_kernel(*blur_px), borderType=cv2.BORDER_REFLECT)
+    img = img.astype(np.float32)
     if binning > 1:
         s = img.shape[0] // binning
         img = cv2.resize(img, (s, s), interpolation=cv2.INTER_AREA)
-    gains = np.asarray(cond.white_balance, np.float32) * np.float32(cond.exposure_gain)
-    img *= gains
-    # shot + read noise: var = g * signal + r^2 (per pixel and channel)
-    std = np.sqrt(np.maximum(img, 0.0) * np.float32(model.shot_noise_gain) + np.float32(model.read_noise_dn ** 2))
-    img += std * rng.standard_normal(img.shape, dtype=np.float32)
+    img *= np.asarray(cond.white_balance, np.float32) * np.float32(cond.exposure_gain)
+    # shot + read noise: var = g * signal + r^2 (per pixel and channel), in place
+    var = np.maximum(img, 0.0)
+    var *= np.float32(model.shot_noise_gain)
+    var += np.float32(model.read_noise_dn ** 2)
+    np.sqrt(var, out=var)
+    # OpenCV's generator, seeded per frame from ``rng`` (3x faster than numpy's normals at 320 px)
+    noise = np.empty(img.shape, np.float32)
+    cv2.setRNGSeed(int(rng.integers(0, 2**31 - 1)))
+    cv2.randn(noise, 0.0, 1.0)
+    var *= noise
+    img += var
     np.clip(img, 0.0, 255.0, out=img)
-    return (img + 0.5).astype(np.uint8)
+    img += 0.5
+    return img.astype(np.uint8)

@@ -18,6 +18,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ipp_bench.config import GridConfig, SensorConfig
@@ -105,6 +106,9 @@ class WeedWorld:
     def __init__(self, grid: GridConfig, sensor: SensorConfig, speed: float = 2.0,
                  cfg: SimConfig = SimConfig()) -> None:
         self.grid, self.cfg, self.sensor_cfg = grid, cfg, sensor
+        # one OpenCV thread per process, as for BLAS (ipp_bench._threads): on 2 shared cores a second
+        # thread only waits for the first; parallelism comes from worker processes
+        cv2.setNumThreads(1)
         self.quad = QuadrotorParams(camera_fovy_deg=sensor.fov_deg)
         self.scene = WeedScene(grid.rows, grid.cols, grid.resolution, self.quad, cfg.scene)
         self.flight = Flight(self.scene, speed=speed, cfg=cfg.flight, gains=cfg.gains,

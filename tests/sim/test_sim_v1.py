@@ -149,3 +149,19 @@ def test_calibration_command_on_a_tiny_budget(tmp_path):
     assert text.count("# fitted by `python -m ipp_bench.sim.calibrate --fields 1`") == 2
     calibrate.write_task_file(str(path), 0.002, 0.25, 1.0, "python -m ipp_bench.sim.calibrate --fields 2", 0.004)
     assert "--fields 1`" not in path.read_text()  # rewriting replaces, never piles up
+
+
+def test_a_leg_longer_than_the_budget_in_flight_time_is_flown_until_the_budget_ends(env):
+    env.reset(seed=2)
+    m = env.mission
+    here = m.position.copy()
+    # back and forth: the second leg reverses, so its flight time exceeds its nominal time
+    far = np.array([here[0] + 10.0 if here[0] < 18 else here[0] - 10.0, here[1], here[2]])
+    m.fly_to(far)
+    nominal = float(np.linalg.norm(here - far)) / 2.0
+    m.time_s = m.budget_s - nominal - 0.1  # the nominal time fits, the flight time (+ up to 2 s) does not
+    m.flight.ref_time = m.time_s
+    m.flight.scene.data.time = m.time_s
+    assert not m.can_reach(here)
+    m.fly_to(here)
+    assert m.time_s == pytest.approx(m.budget_s) and np.linalg.norm(m.position - here) > 0.1

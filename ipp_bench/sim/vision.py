@@ -145,6 +145,17 @@ class GroundProjector:
         t = -pz / d[:, 2]
         return np.stack([cam_pos[0] + t * d[:, 0], cam_pos[1] + t * d[:, 1]], axis=1)
 
+    def to_image(self, points, cam_pos, cam_mat) -> np.ndarray:
+        """(K, 2) OpenCV pixel coordinates (x right, y down) of world points (K, 3) [m]; NaN behind the camera."""
+        R = np.asarray(cam_mat, dtype=np.float64).reshape(3, 3)
+        pc = (np.asarray(points, dtype=np.float64) - np.asarray(cam_pos, dtype=np.float64)) @ R  # camera frame
+        depth = -pc[:, 2]
+        ok = depth > 1e-9
+        d = np.where(ok, depth, 1.0)
+        u = self.focal * pc[:, 0] / d + self.width / 2.0 - 0.5
+        v = -self.focal * pc[:, 1] / d + self.height / 2.0 - 0.5
+        return np.where(ok[:, None], np.stack([u, v], axis=1), np.nan)
+
     def cell_fractions(self, mask: np.ndarray, cam_pos, cam_mat) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Weed fraction per cell from a weed mask (H, W) of 0/1 (any numeric dtype).
 

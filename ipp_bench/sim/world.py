@@ -90,6 +90,8 @@ class CameraReading:
     body_xyz: np.ndarray  # (3,) true drone position when the frame was taken [m]
     estimated_xyz: np.ndarray  # (3,) estimated drone position used for georeferencing [m]
     binning: int  # read-out binning factor of the frame
+    footprint: np.ndarray | None = None  # (4, 2) ground corners of the frame from the estimated pose [m]
+    cell_pixels: dict | None = None  # seen cell -> (x, y) pixel of its centre in ``frame`` (estimated pose)
 
 
 class WeedWorld:
@@ -207,10 +209,23 @@ class WeedWorld:
                                   self.flight.angular_velocity, proj.focal) if cam.exposure_s > 0 else (0.0, 0.0)
             frame = form_image(raw, cam, cond, self._pixel_rng, binning, blur)
         weed = self.cfg.segmenter(frame)
-        fraction, seen, _ = self.projector(binning).cell_fractions(weed, est_cam_pos, est_cam_mat)
-        reading = CameraReading(frame, weed, fraction, seen, self.flight.position, est_pos, binning)
+        proj = self.projector(binning)
+        fraction, seen, _ = proj.cell_fractions(weed, est_cam_pos, est_cam_mat)
+        reading = CameraReading(frame, weed, fraction, seen, self.flight.position, est_pos, binning,
+                                proj.corners_on_ground(est_cam_pos, est_cam_mat),
+                                self._cell_pixels(seen, proj, est_cam_pos, est_cam_mat))
         self.last_reading = reading
         return reading
+
+    def _cell_pixels(self, seen: np.ndarray, proj: GroundProjector, cam_pos, cam_mat) -> dict:
+        """Seen cell -> (x, y) pixel of its centre in the frame (the demo writes the fractions there)."""
+        cells = np.flatnonzero(seen)
+        res = self.grid.resolution
+        pts = np.stack([(cells % self.grid.cols + 0.5) * res, (cells // self.grid.cols + 0.5) * res,
+                        np.zeros(cells.size)], axis=1)
+        uv = proj.to_image(pts, cam_pos, cam_mat)
+        return {int(c): (float(u), float(v)) for c, (u, v) in zip(cells, uv) if np.isfinite(u)}
+
 
     def read_camera(self, sensor: Sensor, rng: np.random.Generator,
                     truth: np.ndarray | None = None) -> tuple[Observation | None, np.ndarray | None]:

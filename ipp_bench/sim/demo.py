@@ -192,8 +192,8 @@ class DemoVideo:
         figsize = (self.FIG_WIDTH, self.FIG_WIDTH * h / w)
         fig = Figure(figsize=figsize, dpi=w / self.FIG_WIDTH, facecolor="white")
         self.fig, self.canvas = fig, FigureCanvasAgg(fig)
-        fig.text(0.01, 0.985, title, fontsize=13, weight="bold", va="top")
-        self._status = fig.text(0.99, 0.985, "", fontsize=12, ha="right", va="top", animated=True)
+        fig.text(0.01, 0.985, title, fontsize=12, weight="bold", va="top")
+        self._status = fig.text(0.99, 0.985, "", fontsize=10, ha="right", va="top", animated=True)
 
         def axes(rect, name):
             ax = fig.add_axes(rect)
@@ -227,11 +227,10 @@ class DemoVideo:
                 ax.axvline(x, color="white", lw=0.3, alpha=0.35)
             for y in np.arange(0.0, height_m + 1e-9, res):
                 ax.axhline(y, color="white", lw=0.3, alpha=0.35)
-        cax = fig.add_axes([0.035, 0.015, 0.38, 0.012])
-        tbar = fig.colorbar(ScalarMappable(Normalize(0.0, budget), colormaps["plasma"]), cax=cax,
-                            orientation="horizontal")
+        cax = fig.add_axes([0.955, 0.09, 0.008, 0.27])
+        tbar = fig.colorbar(ScalarMappable(Normalize(0.0, budget), colormaps["plasma"]), cax=cax)
         tbar.ax.tick_params(labelsize=7)
-        tbar.set_label("path: mission time [s]", fontsize=7, labelpad=1)
+        tbar.set_label("path colour: mission time [s]", fontsize=7, labelpad=2)
         self._paths, self._drones, self._footprints = [], [], []
         for ax in (ax_truth, ax_mean, ax_std):
             (fp,) = ax.plot([], [], "-", color="cyan", lw=1.2, animated=True)
@@ -245,7 +244,7 @@ class DemoVideo:
             self._paths.append(lc)
             (dot,) = ax.plot([], [], "o", ms=6, mfc="red", mec="white", animated=True)
             self._drones.append(dot)
-        ax_tr = fig.add_axes([0.70, 0.09, 0.285, 0.27])
+        ax_tr = fig.add_axes([0.685, 0.09, 0.245, 0.27])
         ax_tr.set_title("trace(P) over the ROI", fontsize=10)
         ax_tr.set_xlabel("mission time [s]", fontsize=8)
         ax_tr.tick_params(labelsize=7)
@@ -364,9 +363,9 @@ class DemoVideo:
         flight = world.flight
         wind = flight.wind
         err = float(np.linalg.norm(flight.estimated_position() - here))
-        self._status.set_text(f"t = {t:5.1f} s  alt {here[2]:4.1f} m  wind {np.hypot(wind[0], wind[1]):3.1f} m/s "
-                              f"from {np.degrees(np.arctan2(-wind[1], -wind[0])) % 360:3.0f} deg  "
-                              f"estimate - truth {err:4.2f} m  unc. red. {red:5.1f} %")
+        self._status.set_text(f"t {t:5.1f} s | {here[2]:4.1f} m | wind {np.hypot(wind[0], wind[1]):3.1f} m/s from "
+                              f"{np.degrees(np.arctan2(-wind[1], -wind[0])) % 360:3.0f} deg | estimate - truth "
+                              f"{err:4.2f} m | uncertainty red. {red:5.1f} %")
         for artist in [*self._animated, *self._cell_texts]:
             if artist.axes is not None:
                 artist.axes.draw_artist(artist)
@@ -428,7 +427,7 @@ def record(task: str, planner: str, seed: int, out: str, budget: float | None = 
                    bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s mission [{elapsed}<{remaining}]")
 
     def on_reset(e) -> None:
-        v = DemoVideo(e, out, f"{planner}  |  {task}  |  seed {seed}", size, fps, speedup, crf, hold_s, bar)
+        v = DemoVideo(e, out, f"{planner} | {task.split('/')[-1]} | seed {seed}", size, fps, speedup, crf, hold_s, bar)
         e.mission.step_hooks.append(v.hook)
         v.hook(e.mission)  # the frame at t = 0
         video["v"] = v

@@ -4,31 +4,31 @@
 
 For calibration fields whose seeds are disjoint from every evaluation seed (fields are drawn from
 ``SeedSequence((CALIBRATION_KEY, i))``; evaluation episodes draw theirs from ``env.reset(seed)``'s
-generator), the drone is placed over the map at each altitude, hovers ``hover_s`` in the episode's
-wind under the estimated-state controller, and the camera pipeline is read at every resolution
-factor f (1: per cell; the sensor's binning factor: 2 x 2 block means, read from the binned
-image); then it moves ``second_look_m`` and hovers again for a second look at the same cells.
-The errors of a read-out against the ground truth (e = H z_camera - H truth) split into
+generator), the drone is placed over the map, and at each altitude hovers ``hover_s`` in the
+episode's wind under the estimated-state controller and reads the camera pipeline at every
+resolution factor f (1: per cell; the sensor's binning factor: 2 x 2 block means, read from the
+binned image); then it moves ``second_look_m`` and looks again. A read-out's error against the
+ground truth (e = H z_camera - H truth) is split three ways:
 
-* a persistent part, the same at both looks (plant margins and colours that the pipeline gets
-  wrong the same way every time): variance E[e1 e2];
-* a look-to-look part (pixel noise, sampling phase, misregistration, lighting of the moment):
-  variance E[(e1 - e2)^2] / 2.
+* common: the part of a cell's error that looks from *different* altitudes share (plant margins and
+  colours that the pipeline gets wrong whatever the altitude), E[e_h e_h'] over cells. It is white
+  per-cell variance of the camera-visible field, so it joins the GP prior's nugget;
+* altitude-specific persistent: what two looks at the same altitude and factor share beyond the
+  common part, E[e1 e2] - common * sum(w^2);
+* look-to-look: E[(e1 - e2)^2] / 2 (pixel noise, sampling phase, misregistration, gusts).
 
-Measured, the persistent part dominates (errors of two looks correlate at ~0.95). A Kalman filter
-that took the whole error as independent noise R would expect every repeated look to disagree by
-sqrt(2 R) and its innovations would be far smaller than it predicts (NIS << 1). So the belief models
-what the camera sees: R is fitted to the look-to-look part with
+Measured, errors of two looks correlate at ~0.95: a Kalman filter that took the whole error as
+independent noise R would expect repeated looks to disagree far more than they do (NIS << 1), and
+one that took only the look-to-look part would be surprised by every change of altitude (NIS >> 1).
+R is fitted to look-to-look + altitude-specific by least squares on the logarithm with
 
     sigma^2(h, f) = f^e a (1 - exp(-b h))
 
-(a [field units^2], b [1/m], e [-]: the sensor model of benchmark v1 with the binning exponent
-free), and the persistent part, averaged over the task's altitudes with their resolution factor, is
-white per-cell variance of the camera-visible field: it joins the GP prior's nugget. ``--write``
-puts a, b, e (e only when the installed ``SensorConfig`` has ``binning_noise_exponent``) and the
-nugget (only when ``GPConfig`` has ``nugget``; the field family's own nugget from ``--field-nugget``
-is added) into the task file with a comment naming the command. The measured and fitted values are
-printed.
+(a [field units^2], b [1/m], e [-]: the sensor model of benchmark v1 with the binning exponent free;
+e is kept in SensorConfig's range [0, 6]). ``--write`` puts a, b, e (e only when ``SensorConfig``
+has ``binning_noise_exponent``) and the nugget (field family's nugget, refitted as ``ipp-bench
+fit-prior`` does, plus the common part) into the task file with a comment naming the command.
+The measured and fitted values are printed.
 """
 
 from __future__ import annotations
@@ -52,13 +52,14 @@ class CalibrationResult:
     factors: tuple[int, ...]  # [-] resolution factors
     mse: np.ndarray  # (n_alt, n_f) mean squared error [field units^2]
     bias: np.ndarray  # (n_alt, n_f) mean error [field units]
-    persistent: np.ndarray  # (n_alt, n_f) E[e1 e2] of two looks [field units^2]
+    persistent: np.ndarray  # (n_alt, n_f) E[e1 e2] of two looks at the same altitude [field units^2]
     look_to_look: np.ndarray  # (n_alt, n_f) E[(e1 - e2)^2] / 2 [field units^2]
+    rest: np.ndarray  # (n_alt, n_f) look-to-look + altitude-specific persistent variance: R's data [field units^2]
     count: np.ndarray  # (n_alt, n_f) number of scalar read-out pairs
     a: float
     b: float
     e: float
-    camera_nugget: float  # [field units^2] persistent variance at the task's altitudes
+    camera_nugget: float  # [field units^2] per-cell error shared by looks at different altitudes
     e_free: float  # [-] the exponent fitted without SensorConfig's range
 
     def model(self, h, f) -> np.ndarray:
@@ -137,7 +138,7 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
     t0 = time.perf_counter()
 
     def look(f, flat):
-        """Rows (cells, weights) of the read-out at f and their errors; the reading for the second look."""
+        """Rows (cells, weights, error) of the read-out at f, and the reading (per-cell fractions)."""
         reading = world.camera(binning=int(f))
         obs = sensors[f].observe(reading.estimated_xyz)
         obs = restrict(obs, reading.seen) if obs is not None else None
@@ -147,59 +148,67 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
         return [(obs.cells[w > 0], w[w > 0], float(e)) for w, e in zip(obs.weights, errors)], reading
 
     def again(rows, reading, flat):
-        """The same rows (same cells, same weights) read from the second look's per-cell fractions."""
-        return [(e1, float(w @ reading.fraction[c] - w @ flat[c])) for c, w, e1 in rows if reading.seen[c].all()]
+        """(e1, e2, sum w^2): the same rows read from the second look's per-cell fractions."""
+        return [(e1, float(w @ reading.fraction[c] - w @ flat[c]), float(w @ w)) for c, w, e1 in rows
+                if reading.seen[c].all()]
 
+    cross: list[float] = []  # products of per-cell errors of looks at different (altitude, factor)
     try:
         for i, (truth, seed) in enumerate(calibration_fields(cfg.grid, cfg.mission.field, n_fields)):
             world.begin_episode(truth, seed)
             rng = np.random.default_rng(seed)
             flat = truth.reshape(-1)
-            for h in altitudes:
-                for _ in range(positions_per_field):
-                    xyz = np.array([rng.uniform(0.15, 0.85) * width, rng.uniform(0.15, 0.85) * height, h])
+            for _ in range(positions_per_field):
+                x, y = rng.uniform(0.15, 0.85) * width, rng.uniform(0.15, 0.85) * height
+                cell_errors = {}
+                for h in altitudes:
+                    xyz = np.array([x, y, h])
                     world.flight.reset(xyz)
                     world.flight.hover(hover_s, at=xyz)
-                    first = {f: look(f, flat)[0] for f in factors}
+                    first = {}
+                    for f in factors:
+                        first[f], reading = look(f, flat)
+                        err = np.where(reading.seen, reading.fraction - flat, np.nan)
+                        cell_errors[(h, f)] = err
                     step = rng.normal(size=2)
                     step *= second_look_m / np.linalg.norm(step)
-                    second_xyz = xyz + np.array([step[0], step[1], 0.0])
-                    world.flight.hover(hover_s, at=second_xyz)
+                    world.flight.hover(hover_s, at=xyz + np.array([step[0], step[1], 0.0]))
                     for f in factors:
                         pairs[(h, f)] += again(first[f], look(f, flat)[1], flat)
+                keys = list(cell_errors)
+                for ka in range(len(keys)):
+                    for kb in range(ka + 1, len(keys)):
+                        if keys[ka][0] == keys[kb][0]:
+                            continue  # same altitude: not independent looks of the common part
+                        prod = cell_errors[keys[ka]] * cell_errors[keys[kb]]
+                        cross += prod[np.isfinite(prod)].tolist()
             if verbose:
                 print(f"  field {i + 1}/{n_fields} done ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     finally:
         world.close()
+    # the part of a cell's error that every look shares, whatever its altitude: white per-cell
+    # variance of the camera-visible field (the nugget); the rest of each read-out's error is R
+    camera_nugget = max(float(np.mean(cross)), 0.0) if cross else 0.0
     shape = (len(altitudes), len(factors))
-    mse, bias, pers, ltl = (np.full(shape, np.nan) for _ in range(4))
+    mse, bias, pers, ltl, rest = (np.full(shape, np.nan) for _ in range(5))
     count = np.zeros(shape, dtype=np.int64)
     for i, h in enumerate(altitudes):
         for j, f in enumerate(factors):
-            e = np.array(pairs[(h, f)], dtype=np.float64).reshape(-1, 2)
+            e = np.array(pairs[(h, f)], dtype=np.float64).reshape(-1, 3)
             count[i, j] = len(e)
             if len(e):
-                mse[i, j] = float(np.mean(e * e))
-                bias[i, j] = float(np.mean(e))
+                mse[i, j] = float(np.mean(e[:, 0] ** 2))
+                bias[i, j] = float(np.mean(e[:, 0]))
                 pers[i, j] = float(np.mean(e[:, 0] * e[:, 1]))
                 ltl[i, j] = float(0.5 * np.mean((e[:, 0] - e[:, 1]) ** 2))
-    a, b, e = fit_noise_model(altitudes, factors, ltl, count, E_RANGE)
-    e_free = fit_noise_model(altitudes, factors, ltl, count)[2]
-    # persistent variance the belief meets: at the task's altitudes, with the sensor's binning rule
-    s_cfg = cfg.sensor
-    weights, values = [], []
-    for alt in cfg.graph.altitudes:
-        f = s_cfg.binning if (alt > s_cfg.binning_altitude and s_cfg.binning > 1) else 1
-        if alt in altitudes and f in factors:
-            i, j = list(altitudes).index(alt), list(factors).index(f)
-            weights.append(count[i, j])
-            values.append(max(pers[i, j], 0.0))
-    if not weights:  # task altitudes not measured: the persistent variance over everything measured
-        ok = count > 0
-        weights, values = count[ok].tolist(), np.maximum(pers[ok], 0.0).tolist()
-    camera_nugget = float(np.average(values, weights=weights))
+                # look-to-look error plus the persistent error this altitude and factor do not share
+                # with the others (the common part is the nugget's: camera_nugget * sum w^2 per row)
+                specific = max(float(np.mean(e[:, 0] * e[:, 1] - camera_nugget * e[:, 2])), 0.0)
+                rest[i, j] = max(ltl[i, j] + specific, 1e-7)
+    a, b, e = fit_noise_model(altitudes, factors, rest, count, E_RANGE)
+    e_free = fit_noise_model(altitudes, factors, rest, count)[2]
     return CalibrationResult(tuple(float(h) for h in altitudes), tuple(int(f) for f in factors), mse, bias, pers,
-                             ltl, count, a, b, e, camera_nugget, e_free)
+                             ltl, rest, count, a, b, e, camera_nugget, e_free)
 
 
 def _set_keys(text: str, section: str, values: list[tuple[str, str, str]], command: str) -> str:
@@ -229,7 +238,7 @@ def write_task_file(path: str, a: float, b: float, e: float | None, command: str
     """Sets the fitted sensor constants (and the nugget) of a task file, with a comment naming the command."""
     with open(path, encoding="utf-8") as fh:
         text = fh.read()
-    sensor = [("noise_a", f"{a:.6g}", "[field units^2] look-to-look camera error a (1 - exp(-b h))"),
+    sensor = [("noise_a", f"{a:.6g}", "[field units^2] camera error not shared across altitudes: f^e a (1 - exp(-b h))"),
               ("noise_b", f"{b:.6g}", "[1/m]")]
     if e is not None:
         sensor.append(("binning_noise_exponent", f"{round(e, 3) + 0.0:g}", "[-] variance factor f^e of a binned read-out"))
@@ -262,17 +271,16 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--altitudes must be > 0 m and --factors >= 1")
     res = measure(args.task, altitudes, factors, args.fields, args.positions, args.hover_s)
     print(f"task {args.task}: {args.fields} calibration fields x {args.positions} positions, hover {args.hover_s} s")
-    print(f"{'h [m]':>6} {'f':>2} | {'pairs':>6} {'bias':>8} {'mse':>9} {'persist':>9} {'look2look':>9} "
-          f"{'R fit':>9} {'corr':>5}")
+    print(f"{'h [m]':>6} {'f':>2} | {'rows':>6} {'bias':>8} {'mse':>9} {'persist':>9} {'look2look':>9} "
+          f"{'R data':>9} {'R fit':>9}")
     for i, h in enumerate(res.altitudes):
         for j, f in enumerate(res.factors):
-            corr = res.persistent[i, j] / res.mse[i, j] if res.mse[i, j] > 0 else float("nan")
             print(f"{h:6.1f} {f:2d} | {res.count[i, j]:6d} {res.bias[i, j]:+8.4f} {res.mse[i, j]:9.5f} "
-                  f"{res.persistent[i, j]:9.5f} {res.look_to_look[i, j]:9.5f} {float(res.model(h, f)):9.5f} "
-                  f"{corr:5.2f}")
-    print(f"R fit (look-to-look): sigma^2(h, f) = f^{res.e:.3f} * {res.a:.5g} * (1 - exp(-{res.b:.4g} h)) "
+                  f"{res.persistent[i, j]:9.5f} {res.look_to_look[i, j]:9.5f} {res.rest[i, j]:9.5f} "
+                  f"{float(res.model(h, f)):9.5f}")
+    print(f"per-cell error common to every altitude (joins the nugget): {res.camera_nugget:.5g}")
+    print(f"R = look-to-look + altitude-specific persistent, fitted: sigma^2(h, f) = f^{res.e:.3f} * {res.a:.5g} * (1 - exp(-{res.b:.4g} h)) "
           f"(e in SensorConfig's range {E_RANGE}; without that range e = {res.e_free:.3f})")
-    print(f"persistent camera error at the task's altitudes (joins the nugget): {res.camera_nugget:.5g}")
     if args.write:
         from ipp_bench.config import SensorConfig
         from ipp_bench.envs.registry import task_spec

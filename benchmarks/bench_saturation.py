@@ -14,7 +14,7 @@ Two measurements behind the "Coverage saturation" section of RESULTS.md:
      single-read-out ROI trace reduction per second of shortest-path flight, reached hop by hop;
      14 m nodes are dropped after ``low_after_s``.
 
-    python benchmarks/bench_saturation.py [--episodes 8] [--tasks ...]
+    python benchmarks/bench_saturation.py [--episodes 8] [--tasks ...]   (--episodes 0: table 1 only)
 
 Seeds are 10,000,000 + i (the attention checkpoint's validation seeds; the leaderboard never
 uses them). The global probe computes a trace reduction for every node at every decision: about
@@ -102,8 +102,7 @@ def single_look_table(task: str) -> None:
     env = make_env(task)
     cfg, sensor = env.config, env.sensor
     # the GP prior as Mission builds it (a reset mission has already read out its start position)
-    prior = GPBelief.from_grid((cfg.grid.rows, cfg.grid.cols), cfg.grid.resolution,
-                               cfg.gp.length_scale, cfg.gp.signal_variance, cfg.gp.prior_mean)
+    prior = GPBelief.prior(cfg.grid, cfg.gp)
     width, height = cfg.grid.size_m
     print(f"\n{task}: one read-out from the prior, straight below the map centre")
     print("| altitude [m] | footprint [m] | noise var | cells seen | variance removed over them |")
@@ -128,7 +127,7 @@ def main(argv=None) -> None:
     register("global", f"{__name__}:GlobalGreedy")
     for task in args.tasks:
         single_look_table(task)
-    for task in args.tasks:
+    for task in args.tasks if args.episodes > 0 else ():
         env = make_env(task)
         times = env.config.mission.report_times
         print(f"\n{task}: ROI uncertainty reduction [%], mean of {args.episodes} episodes "

@@ -9,7 +9,8 @@ Per frame, medians of 3 runs, over a weed field at 8 m (full resolution) and 14 
 read-out in v1):
 
 - ``v0 numpy``: the v0 HSV threshold (integer arithmetic per pixel) and projection (a ray per
-  pixel, intersected with the ground, ``bincount`` per cell), as shipped in v0 (copied below);
+  pixel, intersected with the ground, ``bincount`` per cell): ``ipp_bench.sim.vision_v0``, which
+  the v0 task still uses;
 - ``OpenCV``: ``cvtColor`` + ``inRange`` + closing, then ``getPerspectiveTransform`` /
   ``warpPerspective`` onto a ground raster and ``resize(INTER_AREA)`` to cells;
 - ``image formation``: lens blur, binning, exposure / white balance, shot + read noise
@@ -23,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import os
 import platform
 import time
@@ -39,60 +39,9 @@ from ipp_bench.sim.camera import EpisodeConditions, form_image  # noqa: E402
 from ipp_bench.sim.gl import mujoco  # noqa: E402
 from ipp_bench.sim.scene import SceneConfig, WeedScene  # noqa: E402
 from ipp_bench.sim.render import SceneRenderer  # noqa: E402
+from ipp_bench.sim.vision_v0 import GroundProjector as V0Projector  # noqa: E402
+from ipp_bench.sim.vision_v0 import HSVThreshold as V0Threshold  # noqa: E402
 from ipp_bench.sim.world import SimConfig, WeedWorld  # noqa: E402
-
-
-# -- the v0 per-pixel pipeline (ipp_bench/sim/vision.py before v1), kept here as the baseline ----
-class V0Threshold:
-    hue_min, hue_max, sat_min, val_min = 72.0, 170.0, 0.35, 0.12
-
-    def __call__(self, rgb: np.ndarray) -> np.ndarray:
-        img = rgb.astype(np.int16)
-        r, g, b = img[..., 0], img[..., 1], img[..., 2]
-        mx = np.maximum(np.maximum(r, g), b)
-        mn = np.minimum(np.minimum(r, g), b)
-        chroma = mx - mn
-        ok = (g == mx) & (chroma > 0)
-        ok &= chroma >= self.sat_min * mx
-        ok &= mx >= self.val_min * 255.0
-        lo, hi = max(self.hue_min, 60.0), min(self.hue_max, 180.0)
-        br = (b - r).astype(np.float32) * 60.0
-        c = chroma.astype(np.float32)
-        ok &= br >= (lo - 120.0) * c
-        ok &= br <= (hi - 120.0) * c
-        return ok
-
-
-class V0Projector:
-    def __init__(self, rows, cols, resolution, width, height, fovy_deg=60.0, min_coverage=0.5):
-        self.rows, self.cols, self.resolution = rows, cols, resolution
-        self.min_coverage = min_coverage
-        self.focal = (height / 2.0) / math.tan(math.radians(fovy_deg) / 2.0)
-        u = (np.arange(width) + 0.5 - width / 2.0) / self.focal
-        v = (np.arange(height) + 0.5 - height / 2.0) / self.focal
-        uu, vv = np.meshgrid(u, v)
-        self.rays_camera = np.stack([uu.ravel(), -vv.ravel(), -np.ones(uu.size)], axis=1)
-        self.n_cells = rows * cols
-
-    def cell_fractions(self, weed, cam_pos, cam_mat):
-        d = self.rays_camera @ np.asarray(cam_mat, dtype=np.float64).reshape(3, 3).T
-        pz = float(cam_pos[2])
-        dz = d[:, 2]
-        down = dz < -1e-9
-        t = np.where(down, -pz / np.where(down, dz, -1.0), 0.0)
-        x = cam_pos[0] + t * d[:, 0]
-        y = cam_pos[1] + t * d[:, 1]
-        c = np.floor(x / self.resolution).astype(np.int64)
-        r = np.floor(y / self.resolution).astype(np.int64)
-        inside = down & (pz > 0) & (c >= 0) & (c < self.cols) & (r >= 0) & (r < self.rows)
-        cells = np.where(inside, r * self.cols + c, -1)
-        valid = cells >= 0
-        idx = cells[valid]
-        counts = np.bincount(idx, minlength=self.n_cells).astype(np.float64)
-        hits = np.bincount(idx, weights=weed.ravel()[valid].astype(np.float64), minlength=self.n_cells)
-        expected = (self.resolution * self.focal / max(pz, 1e-6)) ** 2
-        seen = counts >= self.min_coverage * expected
-        return np.where(seen, hits / np.maximum(counts, 1.0), 0.0), seen, counts
 
 
 def per_frame(fn, n: int, repeat: int = 3) -> float:

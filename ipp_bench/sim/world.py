@@ -31,6 +31,7 @@ from ipp_bench.sim.quadrotor import QuadrotorParams
 from ipp_bench.sim.render import SceneRenderer
 from ipp_bench.sim.scene import SceneConfig, WeedScene
 from ipp_bench.sim.texture import TexturePalette, weed_texture
+from ipp_bench.sim import vision_v0
 from ipp_bench.sim.vision import GroundProjector, WeedSegmenter
 
 MEASUREMENTS = ("camera", "camera+noise", "truth")
@@ -50,6 +51,7 @@ class SimConfig:
     flight: FlightConfig = FlightConfig()
     disturbances: DisturbanceConfig = DisturbanceConfig()
     measurement: str = "camera"  # "camera" (v1) | "camera+noise" (v0) | "truth" (ablation)
+    pipeline: str = "opencv"  # "opencv" (v1) | "v0" (the v0 per-pixel numpy code, ipp_bench.sim.vision_v0)
     pixel_binning: bool = True  # above the binning altitude the image is read out binned (v1)
     min_coverage: float = 0.5  # [-] share of a cell the image must cover for the cell to count as seen
     scene: SceneConfig = SceneConfig()
@@ -59,6 +61,8 @@ class SimConfig:
         if self.camera.image_size > min(self.scene.max_render_size):
             raise ValueError(f"SimConfig.camera.image_size must be <= {min(self.scene.max_render_size)} px "
                              f"(SceneConfig.max_render_size), got {self.camera.image_size}")
+        if self.pipeline not in ("opencv", "v0"):
+            raise ValueError(f"SimConfig.pipeline must be 'opencv' or 'v0', got {self.pipeline!r}")
         if self.measurement not in MEASUREMENTS:
             raise ValueError(f"SimConfig.measurement must be one of {MEASUREMENTS}, got {self.measurement!r}")
         if not 0.0 < self.min_coverage <= 1.0:
@@ -76,7 +80,7 @@ class SimConfig:
         """The v0 deployment: ideal 128 px camera plus the sensor model's noise, stop at every waypoint."""
         return SimConfig(camera=V0_CAMERA, segmenter=WeedSegmenter(open_px=0, close_px=0), palette=TexturePalette.v0(),
                          flight=FlightConfig.v0(), disturbances=DisturbanceConfig.none(),
-                         measurement="camera+noise", pixel_binning=False)
+                         measurement="camera+noise", pixel_binning=False, pipeline="v0")
 
 
 @dataclass(frozen=True)
@@ -121,6 +125,7 @@ class WeedWorld:
         self._size = size
         self._fov = sensor.fov_deg
         self.conditions = EpisodeConditions.nominal()
+        self._v0_threshold = vision_v0.HSVThreshold()
         self._pixel_rng = np.random.default_rng(0)
         self.weed_mask_truth: np.ndarray | None = None
         self._texture_key: tuple | None = None
@@ -128,6 +133,15 @@ class WeedWorld:
         self._sun0 = (self.scene.model.light_dir[self.scene.light_id].copy(),
                       self.scene.model.light_diffuse[self.scene.light_id].copy(),
                       self.scene.model.light_ambient[self.scene.light_id].copy())
+
+    def _v0_projector(self, shape) -> "vision_v0.GroundProjector":
+        key = ("v0", shape[:2])
+        p = self._projectors.get(key)
+        if p is None:
+            p = vision_v0.GroundProjector(self.grid.rows, self.grid.cols, self.grid.resolution, shape[1], shape[0],
+                                          self._fov, self.cfg.min_coverage)
+            self._projectors[key] = p
+        return p
 
     def projector(self, binning: int) -> GroundProjector:
         p = self._projectors.get(binning)
@@ -208,9 +222,14 @@ class WeedWorld:
             blur = motion_blur_px(cam, float(self.flight.position[2]), self.flight.velocity,
                                   self.flight.angular_velocity, proj.focal) if cam.exposure_s > 0 else (0.0, 0.0)
             frame = form_image(raw, cam, cond, self._pixel_rng, binning, blur)
-        weed = self.cfg.segmenter(frame)
         proj = self.projector(binning)
-        fraction, seen, _ = proj.cell_fractions(weed, est_cam_pos, est_cam_mat)
+        if self.cfg.pipeline == "v0":
+            weed = self._v0_threshold(frame)
+            fraction, seen, _ = self._v0_projector(frame.shape).cell_fractions(weed, est_cam_pos, est_cam_mat)
+            weed = weed.astype(np.uint8)
+        else:
+            weed = self.cfg.segmenter(frame)
+            fraction, seen, _ = proj.cell_fractions(weed, est_cam_pos, est_cam_mat)
         reading = CameraReading(frame, weed, fraction, seen, self.flight.position, est_pos, binning,
                                 proj.corners_on_ground(est_cam_pos, est_cam_mat),
                                 self._cell_pixels(seen, proj, est_cam_pos, est_cam_mat))

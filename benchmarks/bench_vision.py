@@ -35,7 +35,7 @@ import numpy as np  # noqa: E402
 from ipp_bench._threads import limit_blas_threads  # noqa: E402
 from ipp_bench.config import GridConfig, SensorConfig  # noqa: E402
 from ipp_bench.fields import make_field  # noqa: E402
-from ipp_bench.sim.camera import EpisodeConditions, form_image  # noqa: E402
+from ipp_bench.sim.camera import form_image  # noqa: E402
 from ipp_bench.sim.gl import mujoco  # noqa: E402
 from ipp_bench.sim.scene import SceneConfig, WeedScene  # noqa: E402
 from ipp_bench.sim.render import SceneRenderer  # noqa: E402

@@ -238,10 +238,12 @@ def write_task_file(path: str, a: float, b: float, e: float | None, command: str
     """Sets the fitted sensor constants (and the nugget) of a task file, with a comment naming the command."""
     with open(path, encoding="utf-8") as fh:
         text = fh.read()
-    sensor = [("noise_a", f"{a:.6g}", "[field units^2] camera error not shared across altitudes: f^e a (1 - exp(-b h))"),
+    sensor = [("noise_a", f"{a:.6g}",
+               "[field units^2] camera error not shared across altitudes: f^e a (1 - exp(-b h))"),
               ("noise_b", f"{b:.6g}", "[1/m]")]
     if e is not None:
-        sensor.append(("binning_noise_exponent", f"{round(e, 3) + 0.0:g}", "[-] variance factor f^e of a binned read-out"))
+        sensor.append(("binning_noise_exponent", f"{round(e, 3) + 0.0:g}",
+                       "[-] variance factor f^e of a binned read-out"))
     text = _set_keys(text, "config.sensor", sensor, command)
     if nugget is not None:
         text = _set_keys(text, "config.gp", [("nugget", f"{nugget:.6g}", "[field units^2] field family's nugget "
@@ -279,7 +281,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"{res.persistent[i, j]:9.5f} {res.look_to_look[i, j]:9.5f} {res.rest[i, j]:9.5f} "
                   f"{float(res.model(h, f)):9.5f}")
     print(f"per-cell error common to every altitude (joins the nugget): {res.camera_nugget:.5g}")
-    print(f"R = look-to-look + altitude-specific persistent, fitted: sigma^2(h, f) = f^{res.e:.3f} * {res.a:.5g} * (1 - exp(-{res.b:.4g} h)) "
+    print(f"R = look-to-look + altitude-specific persistent, fitted: "
+          f"sigma^2(h, f) = f^{res.e:.3f} * {res.a:.5g} * (1 - exp(-{res.b:.4g} h)) "
           f"(e in SensorConfig's range {E_RANGE}; without that range e = {res.e_free:.3f})")
     if args.write:
         from ipp_bench.config import SensorConfig

@@ -139,10 +139,9 @@ def _blend_plan(start, v0, ends, speed: float, ramp_s: float, iters: int = 8):
     short = tc < 0.0
     if short.any():
         lo, hi = np.zeros(int(short.sum())), np.full(int(short.sum()), float(speed))
-        sub = (lambda v: _sub_solve(solve, short, vc, v))
         for _ in range(40):
             mid = 0.5 * (lo + hi)
-            ok = sub(mid)[2] >= 0.0
+            ok = _sub_solve(solve, short, vc, mid)[2] >= 0.0
             lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
         vc[short] = np.maximum(lo, 1e-6)
         d, Tr, tc = solve(vc)

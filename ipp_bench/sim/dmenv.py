@@ -83,7 +83,8 @@ class DeploymentEnvironment(dm_env.Environment):
             return self.reset()
         a = int(np.asarray(action).reshape(-1)[0])
         if not 0 <= a < self._action_spec.num_values:
-            raise ValueError(f"action {a} is invalid: expected a neighbour index in [0, {self._action_spec.num_values})")
+            raise ValueError(f"action {a} is invalid: expected a neighbour index in "
+                             f"[0, {self._action_spec.num_values})")
         mask = self._env.action_masks()
         if not mask[a]:
             self._needs_reset = True

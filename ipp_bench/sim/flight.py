@@ -141,7 +141,8 @@ class Flight:
         self.controller.yaw = float(yaw)
         self.steps = 0
         cfg = self.disturbance_cfg
-        self.disturbances = None if (cfg.calm and cfg.estimator_is_perfect) else Disturbances(cfg, self.disturbance_seed)
+        perfect = cfg.calm and cfg.estimator_is_perfect
+        self.disturbances = None if perfect else Disturbances(cfg, self.disturbance_seed)
         self._m.opt.wind[:] = 0.0
         self._d.xfrc_applied[self._body] = 0.0
         self.ref_pos = np.asarray(xyz, dtype=np.float64).copy()

@@ -15,7 +15,6 @@ matters).
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import cv2
@@ -192,7 +191,6 @@ class WeedWorld:
 
     def _exposure(self) -> float:
         """Gain that an ideal auto-exposure applies: ground irradiance back to its overhead-sun value."""
-        m, i = self.scene.model, self.scene.light_id
         _, diff0, amb0 = self._sun0
         cos_z = max(-float(self.conditions.sun_dir[2]), 0.05)
         return float((amb0[0] + diff0[0]) / (amb0[0] + diff0[0] * cos_z))
@@ -285,7 +283,3 @@ def restrict(obs: Observation, seen: np.ndarray) -> Observation | None:
     W = obs.weights[rows]
     cols = np.any(W > 0, axis=0)
     return Observation(cells=obs.cells[cols], weights=W[:, cols], var=obs.var[rows], altitude=obs.altitude)
-
-
-def sun_elevation_deg(conditions: EpisodeConditions) -> float:
-    return math.degrees(math.asin(min(1.0, -conditions.sun_dir[2])))

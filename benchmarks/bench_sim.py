@@ -7,13 +7,12 @@ Usage::
 
 Figures:
 
-- downward camera at 128 x 128 and 256 x 256: time per frame of rendering alone, of render +
-  HSV threshold, and of the whole read-out (render, threshold, projection to the grid, sensor
-  binning and noise), at 8 m and 14 m over a weed field (target: >= 100 frames/s at 128 x 128);
-- accuracy of the camera's per-cell weed fractions against the ground truth (RMSE, bias);
-- physics: bare ``mj_step`` and controlled steps (cascaded controller + ``mj_step``) per second;
-- full missions of ``ipp_bench/MuJoCoWeed15-v0`` (200 s budget): wall time and how much faster than
-  real time they run, with and without the planner's decision time (target: >= 5x).
+- the v1 camera read-out per frame at 320 x 320 (render, image formation, OpenCV pipeline, sensor
+  layout) at 8 m and 14 m (the pipeline alone against v0's numpy code: ``bench_vision.py``);
+- physics: bare ``mj_step`` and controlled steps (estimator, wind, cascaded controller + ``mj_step``)
+  per second;
+- full missions of ``ipp_bench/MuJoCoWeed15-v1`` and ``-v0`` (200 s budget): wall time and how much
+  faster than real time they run, with and without the planner's decision time (v1 target: >= 50x).
 
 Medians over repetitions; the machine is shared and noisy, so compare ratios from one run.
 MUJOCO_GL defaults to egl (Mesa llvmpipe renders without a GPU).
@@ -30,12 +29,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-import ipp_bench.envs  # noqa: E402, F401
+import ipp_bench.envs as envs  # noqa: E402
 from ipp_bench._threads import limit_blas_threads  # noqa: E402
 from ipp_bench.config import GridConfig, SensorConfig  # noqa: E402
 from ipp_bench.fields import make_field  # noqa: E402
 from ipp_bench.sensor import Sensor  # noqa: E402
-from ipp_bench.sim.controller import Leg  # noqa: E402
+from ipp_bench.sim.controller import ContinuousLeg  # noqa: E402
 from ipp_bench.sim.gl import mujoco  # noqa: E402
 from ipp_bench.sim.world import SimConfig, WeedWorld  # noqa: E402
 
@@ -53,64 +52,33 @@ def per_frame(fn, n: int, repeat: int = 3) -> float:
 
 
 def bench_camera(frames: int) -> None:
-    grid, sensor_cfg = GridConfig(), SensorConfig()
+    """Whole read-out per frame in v1 (render, image formation, OpenCV pipeline, sensor layout)."""
+    grid = GridConfig()
+    cfg = envs.task_spec("ipp_bench/MuJoCoWeed15-v1").config
     truth = make_field("weed_patches", grid, np.random.default_rng(0))
-    print("\n## Downward camera: time per frame (median of 3 runs)")
-    print(f"{'size':>9} {'alt':>5} | {'render':>14} | {'render+HSV':>14} | {'full read-out':>14}")
-    for size in (128, 256):
-        world = WeedWorld(grid, sensor_cfg, cfg=SimConfig(image_size=size))
-        world.load_field(truth, 1)
-        sensor = Sensor(grid, sensor_cfg)
+    print("\n## v1 camera read-out per frame (median of 3 runs; render + formation + OpenCV + layout)")
+    for size in (320,):
+        world = WeedWorld(grid, cfg.sensor, cfg=SimConfig().with_image_size(size))
+        world.begin_episode(truth, 1)
+        sensor = Sensor(grid, cfg.sensor)
         rng = np.random.default_rng(0)
         xs = np.linspace(5.0, 32.5, 16)
         for alt in (8.0, 14.0):
             def place(i):
                 world.scene.reset([xs[i % 16], xs[(5 * i) % 16], alt])
 
-            def render(i):
-                place(i)
-                world.renderer.render(None, size, size)
-
-            def render_threshold(i):
-                place(i)
-                world.cfg.threshold(world.renderer.render(None, size, size))
-
             def readout(i):
                 place(i)
-                world.read_camera(sensor, rng)
+                world.read_camera(sensor, rng, truth)
 
-            t_place = per_frame(place, frames)
-            t = [per_frame(f, frames) - t_place for f in (render, render_threshold, readout)]
-            cells = [f"{1e3 * x:6.2f} ms {1 / x:5.0f}/s" for x in t]
-            print(f"{size:>4}x{size:<4} {alt:4.0f}m | " + " | ".join(cells))
-        world.close()
-
-
-def bench_accuracy(fields: int) -> None:
-    grid, sensor_cfg = GridConfig(), SensorConfig()
-    print(f"\n## Camera weed fractions against the ground truth ({fields} weed_patches fields x 25 positions)")
-    print(f"{'size':>9} {'alt':>5} | {'cells':>6} | {'RMSE':>6} | {'bias':>7} | {'max |err|':>9}")
-    xs = np.arange(3.75, 37.5, 7.5)
-    for size in (128, 256):
-        world = WeedWorld(grid, sensor_cfg, cfg=SimConfig(image_size=size))
-        for alt in (8.0, 14.0):
-            errs = []
-            for seed in range(fields):
-                truth = make_field("weed_patches", grid, np.random.default_rng(seed))
-                world.load_field(truth, 1000 + seed)
-                for x in xs:
-                    for y in xs:
-                        world.scene.reset([x, y, alt])
-                        r = world.camera()
-                        errs.append(r.fraction[r.seen] - truth.reshape(-1)[r.seen])
-            e = np.concatenate(errs)
-            print(f"{size:>4}x{size:<4} {alt:4.0f}m | {e.size:6d} | {np.sqrt(np.mean(e * e)):6.3f} | "
-                  f"{e.mean():+7.3f} | {np.abs(e).max():9.3f}")
+            t = per_frame(readout, frames) - per_frame(place, frames)
+            print(f"{size}x{size} {alt:4.0f} m: {1e3 * t:6.2f} ms ({1 / t:5.0f}/s)")
         world.close()
 
 
 def bench_physics(steps: int) -> None:
-    world = WeedWorld(GridConfig(), SensorConfig())
+    world = WeedWorld(GridConfig(), SensorConfig())  # v1 defaults: wind and state estimation on
+    world.flight.disturbance_seed = 1
     m, d = world.scene.model, world.scene.data
     world.flight.reset([5.0, 5.0, 8.0])
     t0 = time.perf_counter()
@@ -119,7 +87,7 @@ def bench_physics(steps: int) -> None:
     bare = steps / (time.perf_counter() - t0)
     flight = world.flight
     flight.reset([5.0, 5.0, 8.0])
-    leg = Leg(flight.position, [30.0, 30.0, 14.0])
+    leg = ContinuousLeg(flight.position, np.zeros(3), [30.0, 30.0, 14.0])
     t0 = time.perf_counter()
     n = 0
     while n < steps:
@@ -133,14 +101,14 @@ def bench_physics(steps: int) -> None:
     world.close()
 
 
-def bench_missions(planners: list[str], seeds: int) -> None:
+def bench_missions(task: str, planners: list[str], seeds: int) -> None:
     from ipp_bench.planners.episode import fly_episode
     from ipp_bench.sim.demo import make_sim_env
 
-    print("\n## Full missions on ipp_bench/MuJoCoWeed15-v0 (200 s budget)")
+    print(f"\n## Full missions on {task} (200 s budget)")
     print(f"{'planner':>10} {'seed':>4} | {'reset s':>7} | {'mission s':>9} | {'wall s':>6} | {'planner s':>9} | "
           f"{'x real time':>11} | {'x w/o planner':>13} | {'legs':>4} | {'unc. red. %':>11}")
-    env = make_sim_env("ipp_bench/MuJoCoWeed15-v0")
+    env = make_sim_env(task)
     rows = []
     for planner in planners:
         for seed in range(seeds):
@@ -169,16 +137,16 @@ def main() -> None:
     parser.add_argument("--planners", nargs="+", default=["random", "coverage", "greedy"],
                         help="planners flown for the real-time factor")
     parser.add_argument("--seeds", type=int, default=2, help="missions per planner")
-    parser.add_argument("--fields", type=int, default=4, help="fields for the threshold accuracy")
+    parser.add_argument("--tasks", nargs="+", default=["ipp_bench/MuJoCoWeed15-v1", "ipp_bench/MuJoCoWeed15-v0"])
     args = parser.parse_args()
     limit_blas_threads()
     print(f"# bench_sim: mujoco {mujoco.__version__}, MUJOCO_GL={os.environ.get('MUJOCO_GL')}, "
           f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"load {os.getloadavg()[0]:.1f}")
     bench_camera(args.frames)
-    bench_accuracy(args.fields)
     bench_physics(args.steps)
-    bench_missions(args.planners, args.seeds)
+    for task in args.tasks:
+        bench_missions(task, args.planners, args.seeds)
 
 
 if __name__ == "__main__":

@@ -167,12 +167,18 @@ class Mission:
         return p
 
     def check_leg(self, xyz) -> tuple[np.ndarray, float]:
-        """Validate a leg to ``xyz``: returns (target, length [m]) or raises as ``fly_to`` does."""
+        """Validate a leg to ``xyz``: returns (target, length [m]) or raises as ``fly_to`` does.
+
+        A leg is refused when its nominal time (length / speed, the least any flight takes)
+        exceeds the remaining budget. Here that is :meth:`leg_time` itself; a mission whose clock
+        charges more (MuJoCo) flies an accepted leg until the budget ends. Masks offer only the
+        legs :meth:`affordable` accepts.
+        """
         target = self.check_position(xyz)
         dist = leg_length(self.position, target)
         if dist <= 1e-6:
             raise ValueError(f"fly_to({tuple(target)}): already there; a leg must move")
-        duration = self.leg_time(target)
+        duration = dist / self.config.mission.speed
         if not fits_budget(duration, self.remaining_s):
             raise BudgetExceededError(
                 f"leg of {dist:.2f} m takes {duration:.2f} s but only {self.remaining_s:.2f} s of the "

@@ -192,12 +192,12 @@ class ContinuousPlanner(_PlannerBase):
         return max(view.remaining_s - margin_s, 0.0) * view.config.mission.speed
 
     def affordable(self, target: np.ndarray, margin_s: float = 1e-6) -> np.ndarray | None:
-        """``target``, or the farthest point on the way to it that the mission's clock affords
-        (None: less than :data:`MIN_FLIGHT_M` of flight is left, the mission is over).
+        """``target``, or the point on the way to it where the nominal reach (remaining time x
+        speed) ends (None: less than :data:`MIN_FLIGHT_M` of flight is left, the mission is over).
 
-        The nominal reach (remaining time x speed) is tried first: it is what the core mission
-        affords. A clock that charges more (MuJoCo's velocity ramps) gets the farthest affordable
-        fraction of the way by bisection.
+        On the core mission that is exactly what its clock affords. A mission whose clock charges
+        more (MuJoCo's velocity ramps) accepts the leg all the same and flies it until the budget
+        ends (``MuJoCoMission.fly_to``), so continuous planners never see a refusal.
         """
         view = self.view
         here = view.position
@@ -206,16 +206,4 @@ class ContinuousPlanner(_PlannerBase):
         reach = self.flight_left_m(margin_s)
         if reach < MIN_FLIGHT_M or dist <= MIN_LEG_M:
             return None
-        point = here + delta * min(1.0, reach / dist)
-        if view.affordable(point[None])[0]:
-            return point
-        lo, hi = 0.0, min(1.0, reach / dist)
-        for _ in range(50):
-            mid = 0.5 * (lo + hi)
-            if view.affordable((here + delta * mid)[None])[0]:
-                lo = mid
-            else:
-                hi = mid
-        if lo * dist < MIN_FLIGHT_M:
-            return None
-        return here + delta * lo
+        return here + delta * min(1.0, reach / dist)

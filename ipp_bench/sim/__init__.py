@@ -6,11 +6,15 @@ Modules (imports flow downwards):
   ``import mujoco`` of the package.
 - ``texture``: per-seed ground texture of a weed field (numpy).
 - ``quadrotor``, ``scene``: the airframe and the scene, composed with ``MjSpec``.
-- ``controller``, ``flight``: cascaded position -> attitude -> thrust control, fixed-step physics.
+- ``controller``, ``flight``: reference legs (v1: velocity-continuous), cascaded position ->
+  attitude -> thrust control, fixed-step physics; ``disturbance``: wind and state estimation.
 - ``render``: the off-screen renderer (owns the GL context, created lazily, closed explicitly).
-- ``vision``: HSV threshold and ground projection of the camera frame to per-cell weed fractions.
-- ``world``: all of the above for one grid; ``mission``: :class:`MuJoCoMission`;
-  ``env``: the gymnasium task ``ipp_bench/MuJoCoWeed15-v0``; ``demo``: ``ipp-bench demo``.
+- ``camera``: image formation (blur, binning, exposure, white balance, pixel noise; per-episode
+  conditions); ``vision``: the OpenCV pipeline from frame to per-cell weed fractions (v1);
+  ``vision_v0``: the v0 per-pixel numpy pipeline.
+- ``world``: all of the above for one grid; ``mission``: :class:`MuJoCoMission` (its clock is the
+  affordability oracle); ``env``: the gymnasium tasks ``ipp_bench/MuJoCoWeed15-v0`` / ``-v1``;
+  ``dmenv``: a ``dm_env`` view; ``calibrate``: the camera's noise model; ``demo``: ``ipp-bench demo``.
 
 Needs ``pip install "ipp-bench[sim]"`` and a system EGL or OSMesa (see ``gl``). Every module
 takes mujoco from ``ipp_bench.sim.gl``, so the backend is chosen whichever module is imported

@@ -1,8 +1,11 @@
 """``ipp-bench demo``: fly a planner in the MuJoCo deployment and write an H.264 video.
 
-Each video frame shows a chase view of the drone, its downward camera and the HSV weed mask
-of that frame, the ground truth, the belief mean and standard deviation with the path coloured
-by mission time, and trace(P) over the ground-truth ROI against mission time. Frames are taken
+Each video frame shows a chase view of the drone; the last measured frame as the camera delivered
+it (image formation, binning) and its weed mask with the per-cell fractions the pipeline read,
+written at the cells' centres; the ground truth, the belief mean and standard deviation with the
+grid, the camera footprint of the last read-out (from the estimated pose) and the path coloured by
+mission time (with its colour bar); trace(P) over the ground-truth ROI against mission time; and,
+in the title bar, mission time, altitude, wind and the state estimate's error against the truth. Frames are taken
 every ``speedup / fps`` seconds of simulated time, so a 200 s mission at the defaults (10 fps,
 4x) gives a 50 s video. ``--compare PLANNER`` flies a second planner on the same seed (no video)
 and writes the paper's comparison plot (trace over time, both planners) as a PNG.
@@ -21,14 +24,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from ipp_bench.data import check_output_file
-
-DEFAULT_TASK = "ipp_bench/MuJoCoWeed15-v0"
+DEFAULT_TASK = "ipp_bench/MuJoCoWeed15-v1"
+CRF_RANGE = (0, 51)  # libx264
 
 
 def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -48,7 +51,8 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     parser.add_argument("--speedup", type=float, default=4.0,
                         help="mission seconds per video second (default 4)")
     parser.add_argument("--size", default="1280x720", help="video WIDTHxHEIGHT, multiples of 16 (default 1280x720)")
-    parser.add_argument("--crf", type=int, default=32, help="x264 quality, lower is better/larger (default 32)")
+    parser.add_argument("--crf", type=int, default=32,
+                        help=f"x264 quality in {CRF_RANGE[0]}-{CRF_RANGE[1]}, lower is better/larger (default 32)")
     parser.add_argument("--hold", type=float, default=1.0, help="seconds of video holding the final frame")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
@@ -132,8 +136,8 @@ class DemoVideo:
         figsize = (self.FIG_WIDTH, self.FIG_WIDTH * h / w)
         fig = Figure(figsize=figsize, dpi=w / self.FIG_WIDTH, facecolor="white")
         self.fig, self.canvas = fig, FigureCanvasAgg(fig)
-        fig.text(0.01, 0.985, title, fontsize=13, weight="bold", va="top")
-        self._status = fig.text(0.99, 0.985, "", fontsize=12, ha="right", va="top", animated=True)
+        fig.text(0.01, 0.985, title, fontsize=12, weight="bold", va="top")
+        self._status = fig.text(0.99, 0.985, "", fontsize=10, ha="right", va="top", animated=True)
 
         def axes(rect, name):
             ax = fig.add_axes(rect)
@@ -153,15 +157,30 @@ class DemoVideo:
 
         square = 0.235 * figsize[0] / figsize[1]  # figure height fraction of a 0.235-wide square
         ax_chase = axes([0.01, 0.45, 0.48, 0.46], "chase view")
-        ax_cam = axes([0.51, 0.91 - square, 0.235, square], "downward camera (60 deg)")
-        ax_mask = axes([0.755, 0.91 - square, 0.235, square], "HSV weed mask")
+        ax_cam = axes([0.51, 0.91 - square, 0.235, square], "last measured frame (as read out)")
+        ax_mask = axes([0.755, 0.91 - square, 0.235, square], "weed mask, per-cell fractions")
         ax_truth = map_axes([0.035, 0.06, 0.17, 0.30], "ground truth (weed fraction)")
         ax_truth.imshow(self.mission.truth, origin="lower", extent=extent, vmin=0, vmax=1, cmap="viridis")
         ax_mean = map_axes([0.245, 0.06, 0.17, 0.30], "belief mean")
         ax_std = map_axes([0.455, 0.06, 0.17, 0.30], "belief std, path by time")
         for ax, (cmap, norm) in zip((ax_mean, ax_std), self._maps):
             fig.colorbar(ScalarMappable(norm, cmap), ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=7)
-        self._paths, self._drones = [], []
+        res = cfg.grid.resolution
+        for ax in (ax_truth, ax_mean, ax_std):  # the grid cells
+            for x in np.arange(0.0, width_m + 1e-9, res):
+                ax.axvline(x, color="white", lw=0.3, alpha=0.35)
+            for y in np.arange(0.0, height_m + 1e-9, res):
+                ax.axhline(y, color="white", lw=0.3, alpha=0.35)
+        cax = fig.add_axes([0.955, 0.09, 0.008, 0.27])
+        tbar = fig.colorbar(ScalarMappable(Normalize(0.0, budget), colormaps["plasma"]), cax=cax)
+        tbar.ax.tick_params(labelsize=7)
+        tbar.set_label("path colour: mission time [s]", fontsize=7, labelpad=2)
+        self._paths, self._drones, self._footprints = [], [], []
+        for ax in (ax_truth, ax_mean, ax_std):
+            (fp,) = ax.plot([], [], "-", color="cyan", lw=1.2, animated=True)
+            self._footprints.append(fp)
+        self._cell_texts = []
+        self._ax_mask = ax_mask
         for ax in (ax_mean, ax_std):
             lc = LineCollection([], cmap="plasma", linewidths=2.0, animated=True)
             lc.set_clim(0, budget)
@@ -169,7 +188,7 @@ class DemoVideo:
             self._paths.append(lc)
             (dot,) = ax.plot([], [], "o", ms=6, mfc="red", mec="white", animated=True)
             self._drones.append(dot)
-        ax_tr = fig.add_axes([0.70, 0.09, 0.285, 0.27])
+        ax_tr = fig.add_axes([0.685, 0.09, 0.245, 0.27])
         ax_tr.set_title("trace(P) over the ROI", fontsize=10)
         ax_tr.set_xlabel("mission time [s]", fontsize=8)
         ax_tr.tick_params(labelsize=7)
@@ -178,7 +197,7 @@ class DemoVideo:
         ax_tr.set_ylim(0, prior * 1.05 if prior > 0 else 1.0)
         ax_tr.grid(alpha=0.3)
         (self._trace,) = ax_tr.plot([], [], "-", color="tab:blue", lw=2, drawstyle="steps-post", animated=True)
-        self._animated = [*self._paths, *self._drones, self._trace, self._status]
+        self._animated = [*self._paths, *self._drones, *self._footprints, self._trace, self._status]
         self.canvas.draw()
         if self.canvas.get_width_height() != (w, h):
             raise ValueError(f"--size {w}x{h}: the figure renders at {self.canvas.get_width_height()}; "
@@ -247,14 +266,21 @@ class DemoVideo:
         rate = min(1.0, self.interval / 2.0) if self.frames else 1.0
         self._chase.azimuth = self._follow(self._chase.azimuth, self._aim(world.scene), rate)
         buf[r0:r1, c0:c1, :3] = renderer.render(self._chase, c1 - c0, r1 - r0)
+        reading = world.last_reading
         r0, r1, c0, c1 = self._box_cam
-        cam = renderer.render(None, c1 - c0, r1 - r0)
-        buf[r0:r1, c0:c1, :3] = cam
-        weed = world.cfg.threshold(cam)
-        shaded = (cam * 0.35).astype(np.uint8)
+        side = r1 - r0
+        if reading is not None:
+            frame, weed = reading.frame, reading.weed_mask.astype(bool)
+        else:
+            frame = renderer.render(None, side, side)
+            weed = world.cfg.segmenter(frame).astype(bool)
+        idx = (np.arange(side) * frame.shape[0] // side)
+        buf[r0:r1, c0:c1, :3] = frame[np.ix_(idx, idx)]
+        shaded = (frame * 0.35).astype(np.uint8)
         shaded[weed] = (255, 40, 200)
         r0, r1, c0, c1 = self._box_mask
-        buf[r0:r1, c0:c1, :3] = shaded
+        buf[r0:r1, c0:c1, :3] = shaded[np.ix_(idx, idx)]
+        self._cell_labels(reading, (r0, r1, c0, c1))
         shape = mission.truth.shape
         values = (mission.belief.mean.reshape(shape), np.sqrt(np.maximum(mission.belief.variance, 0.0)).reshape(shape))
         for (cmap, norm), box, index, v in zip(self._maps, (self._box_mean, self._box_std), self._map_index, values):
@@ -271,15 +297,44 @@ class DemoVideo:
         hist.append((t, mission.history[-1].trace_roi))
         ht = np.array(hist)
         self._trace.set_data(ht[:, 0], ht[:, 1])
+        fx, fy = [], []
+        if reading is not None and reading.footprint is not None:
+            fx = list(reading.footprint[:, 0]) + [reading.footprint[0, 0]]
+            fy = list(reading.footprint[:, 1]) + [reading.footprint[0, 1]]
+        for fp in self._footprints:
+            fp.set_data(fx, fy)
         red = mission.history[-1].uncertainty_reduction_pct
-        self._status.set_text(f"t = {t:6.1f} s   altitude {here[2]:4.1f} m   "
-                              f"uncertainty reduction {red:5.1f} %")
-        for artist in self._animated:
+        flight = world.flight
+        wind = flight.wind
+        err = float(np.linalg.norm(flight.estimated_position() - here))
+        self._status.set_text(f"t {t:5.1f} s | {here[2]:4.1f} m | wind {np.hypot(wind[0], wind[1]):3.1f} m/s from "
+                              f"{np.degrees(np.arctan2(-wind[1], -wind[0])) % 360:3.0f} deg | estimate - truth "
+                              f"{err:4.2f} m | uncertainty red. {red:5.1f} %")
+        for artist in [*self._animated, *self._cell_texts]:
             if artist.axes is not None:
                 artist.axes.draw_artist(artist)
             else:
                 self.fig.draw_artist(artist)
         return np.ascontiguousarray(buf[..., :3])
+
+    def _cell_labels(self, reading, box) -> None:
+        """Per-cell weed fractions of the last read-out, written at the cells' centres in the mask panel."""
+        for txt in self._cell_texts:
+            txt.remove()
+        self._cell_texts = []
+        if reading is None or reading.cell_pixels is None:
+            return
+        r0, r1, c0, c1 = box
+        h = self.size[1]
+        fig_w, fig_h = self.size
+        scale = (r1 - r0) / reading.frame.shape[0]
+        for cell, (u, v) in reading.cell_pixels.items():
+            px, py = c0 + u * scale, r0 + v * scale  # pixel in the video frame (rows from the top)
+            if not (c0 <= px < c1 and r0 <= py < r1):
+                continue
+            self._cell_texts.append(self.fig.text(px / fig_w, (h - py) / fig_h, f"{reading.fraction[cell]:.2f}",
+                                                  fontsize=6, color="white", ha="center", va="center",
+                                                  animated=True))
 
     def abort(self) -> None:
         """Stops the encoder after a failure (the partial file is left as it is)."""
@@ -319,7 +374,7 @@ def record(task: str, planner: str, seed: int, out: str, budget: float | None = 
                    bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s mission [{elapsed}<{remaining}]")
 
     def on_reset(e) -> None:
-        v = DemoVideo(e, out, f"{planner}  |  {task}  |  seed {seed}", size, fps, speedup, crf, hold_s, bar)
+        v = DemoVideo(e, out, f"{planner} | {task.split('/')[-1]} | seed {seed}", size, fps, speedup, crf, hold_s, bar)
         e.mission.step_hooks.append(v.hook)
         v.hook(e.mission)  # the frame at t = 0
         video["v"] = v
@@ -369,19 +424,42 @@ def compare_plot(logs: list, budget: float, report_times, path: str, title: str)
     fig.savefig(path)
 
 
+def _check_writable(path: Path) -> None:
+    """Creates ``path``'s folder and checks that a file can be written there (before anything flies)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"output {str(path)!r} is invalid: cannot create its folder ({err})") from None
+    if path.is_dir():
+        raise ValueError(f"output {str(path)!r} is invalid: it is a folder")
+    if not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise ValueError(f"output {str(path)!r} is invalid: not writable")
+
+
 def run_demo(args: argparse.Namespace) -> int:
     """Runs ``ipp-bench demo``; returns the process exit code."""
     try:
         size = _parse_size(args.size)
         if args.fps < 1 or args.speedup <= 0 or args.hold < 0:
             raise ValueError("--fps must be >= 1, --speedup > 0 and --hold >= 0")
-        if args.seed < 0:
-            raise ValueError(f"--seed {args.seed} is invalid: expected an integer >= 0")
-        out = check_output_file(args.out, "--out", suffix=".mp4")  # every path, before the episode
-        png = args.compare_out or str(out.with_name(out.stem + "_compare.png"))
+        if not CRF_RANGE[0] <= args.crf <= CRF_RANGE[1]:
+            raise ValueError(f"--crf {args.crf} is invalid: libx264 takes {CRF_RANGE[0]}-{CRF_RANGE[1]}")
+        out = Path(args.out)
+        if out.suffix.lower() != ".mp4":
+            raise ValueError(f"--out {args.out!r} is invalid: the demo writes an .mp4")
+        png = Path(args.compare_out) if args.compare_out else out.with_name(out.stem + "_compare.png")
         if args.compare:
-            check_output_file(png, "--compare-out", suffix=".png")
-        out.parent.mkdir(parents=True, exist_ok=True)
+            from ipp_bench.planners import make_planner
+
+            make_planner(args.compare)  # a bad spec fails here, before any mission flies
+            if png.suffix.lower() != ".png":
+                raise ValueError(f"--compare-out {str(png)!r} is invalid: the comparison plot is a .png")
+        from ipp_bench.planners import make_planner
+
+        make_planner(args.planner)
+        make_sim_env(args.task, args.budget).close()  # a non-MuJoCo task fails here too
+        for path in [out] + ([png] if args.compare else []):
+            _check_writable(path)
         log, frames = record(args.task, args.planner, args.seed, str(out), args.budget, size, args.fps,
                              args.speedup, args.crf, args.hold, progress=not args.no_progress)
     except (ValueError, ImportError, RuntimeError) as err:
@@ -400,9 +478,8 @@ def run_demo(args: argparse.Namespace) -> int:
                 other = fly_episode(env, args.compare, args.seed)
             finally:
                 env.close()
-            Path(png).parent.mkdir(parents=True, exist_ok=True)
             cfg = env.config.mission
-            compare_plot([log, other], cfg.budget_s, cfg.report_times, png,
+            compare_plot([log, other], cfg.budget_s, cfg.report_times, str(png),
                          f"{args.task}, seed {args.seed}")
         except (ValueError, ImportError, RuntimeError) as err:
             print(f"ipp-bench demo: error: {err}", file=sys.stderr)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import copy
-import dataclasses
 from typing import Any
 
 import numpy as np
@@ -30,8 +29,7 @@ class MuJoCoIPPEnv(GraphIPPEnv):
 
     ## Action Space
     ``Discrete(k)`` as in the graph tasks. ``action_masks()`` marks a neighbour affordable when
-    the mission's clock (:meth:`MuJoCoMission.leg_durations`: the reference flight time, length /
-    speed plus the 1 s of velocity ramps, from where the drone is) fits the remaining budget.
+    its reference flight time (length / speed plus the 1 s of velocity ramps) fits the budget.
 
     ## Observation Space
     Identical to :class:`~ipp_bench.envs.graph.GraphIPPEnv` (node features, positional
@@ -55,13 +53,16 @@ class MuJoCoIPPEnv(GraphIPPEnv):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
+    #: the simulation settings of this version (v0: ideal camera + synthetic noise, stop-and-go flight)
+    default_sim = staticmethod(SimConfig.v0)
+
     def __init__(self, config: IPPConfig | dict | None = None, render_mode: str | None = None,
                  task_id: str | None = None, sim: SimConfig | None = None, image_size: int | None = None,
                  **overrides: Any):
         super().__init__(config, render_mode=render_mode, task_id=task_id, **overrides)
-        sim = sim if sim is not None else SimConfig()
+        sim = sim if sim is not None else self.default_sim()
         if image_size is not None:
-            sim = dataclasses.replace(sim, image_size=int(image_size))
+            sim = sim.with_image_size(int(image_size))
         self.sim_config = sim
         self.world = WeedWorld(self.config.grid, self.config.sensor, self.config.mission.speed, sim)
         self._chase = chase_camera(self.world.scene)
@@ -89,3 +90,39 @@ class MuJoCoIPPEnv(GraphIPPEnv):
     def close(self) -> None:
         self.world.close()
         super().close()
+
+
+class MuJoCoIPPEnvV1(MuJoCoIPPEnv):
+    """``ipp_bench/MuJoCoWeed15-v1``: the camera is the sensor, the drone flies like one.
+
+    ## Description
+    The v0 task with a realistic deployment (:class:`~ipp_bench.sim.world.SimConfig` defaults):
+    a 320 x 320 camera (2.9 cm ground sampling distance at 8 m, 5.1 cm at 14 m, read out 2 x 2
+    binned above 10 m) with lens blur, motion blur where the image moves, shot and read noise, and
+    per-episode sun direction, exposure and white-balance errors; plant margins whose colours mix
+    with the soil's. The frame goes through OpenCV (HSV threshold, opening, homography onto the
+    ground with the *estimated* pose, area resampling to cells) and the measurement z is what
+    that pipeline estimates: no synthetic noise is added. The belief's noise model R (sensor
+    constants of the task file) is fitted to that pipeline by ``python -m ipp_bench.sim.calibrate``.
+    The drone flies through waypoints without stopping (velocity-continuous legs at up to 2 m/s,
+    slowing only where a leg turns back), in a per-episode wind with gusts, controlled from an
+    estimated state (GPS-like bias and noise, attitude noise).
+
+    ## Action Space
+    As v0; ``action_masks()`` asks the mission's affordability oracle (exact leg durations of
+    the continuous flight from the current velocity).
+
+    ## Observation Space, Rewards, Episode End
+    As v0. Mission time is the sum of the flown legs' durations.
+
+    ## Arguments
+    As v0; ``sim=SimConfig(...)`` overrides the deployment settings (e.g.
+    ``SimConfig(measurement="truth")`` replaces the camera's values by the ground truth).
+
+    ## Version History
+    - v1: camera as the sensor (no synthetic noise, fitted R), realistic image formation, OpenCV
+      pipeline, continuous flight, wind, state estimation.
+    - v0: initial release.
+    """
+
+    default_sim = staticmethod(SimConfig)

@@ -116,6 +116,7 @@ class WeedScene:
         m = self.model
         self.body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "quad")
         self.camera_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "quad/down")
+        self.light_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_LIGHT, "sun")
         self.texture_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXTURE, "weed_field")
         joint = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "quad/free")
         self.qpos_adr = int(m.jnt_qposadr[joint])

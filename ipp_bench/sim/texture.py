@@ -34,6 +34,24 @@ class TexturePalette:
     straw_fraction: float = 0.05  # of soil texels
     moss_fraction: float = 0.04
     stone_fraction: float = 0.02
+    margin_texels: int = 1  # [texels] ring of every plant whose colour mixes with the soil's (0: none, v0)
+    margin_weed_share: tuple[float, float] = (0.5, 1.0)  # [-] range of the weed colour's share in that ring
+    fine_structure: float = 1.0  # [-] weight of texel-scale structure in the plant score (0: none, v0)
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.margin_texels, int) and 0 <= self.margin_texels <= 8):
+            raise ValueError(f"TexturePalette.margin_texels must be an integer in [0, 8], got {self.margin_texels!r}")
+        if not 0.0 <= self.fine_structure <= 5.0:
+            raise ValueError(f"TexturePalette.fine_structure must be in [0, 5], got {self.fine_structure}")
+        lo, hi = self.margin_weed_share
+        if not 0.0 <= lo <= hi <= 1.0:
+            raise ValueError(f"TexturePalette.margin_weed_share must satisfy 0 <= low <= high <= 1, "
+                             f"got {self.margin_weed_share}")
+
+    @staticmethod
+    def v0() -> "TexturePalette":
+        """The v0 texture: plant margins keep the weed colour."""
+        return TexturePalette(margin_texels=0, fine_structure=0.0)
 
 
 def hsv_to_rgb(h: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -120,13 +138,28 @@ def _mask_from_score(field: np.ndarray, score: np.ndarray, p: int) -> np.ndarray
     return _unblocks(ranks >= (p * p - n_weed)[:, None], rows, cols, p)
 
 
-def weed_mask(field: np.ndarray, rng: np.random.Generator, texels_per_cell: int = 64) -> np.ndarray:
-    """Boolean weed mask with exactly ``round(field[r, c] * texels_per_cell**2)`` texels per cell."""
-    field = _check(field, texels_per_cell)
-    p = texels_per_cell
+def _plant_score(field: np.ndarray, rng: np.random.Generator, p: int, fine: float):
+    """Score whose top texels per cell are weeds, and the clump and leaf noise it was built from.
+
+    Clumps (~0.25 cell) with leaves (~0.05 cell) on top, drawn towards weedy neighbours (the
+    interpolated field) so that patches do not end in straight cell borders; ``fine`` > 0 adds
+    texel-scale structure (ragged leaf margins, seedlings of a few texels) that a coarse image
+    cannot resolve.
+    """
     shape = (field.shape[0] * p, field.shape[1] * p)
     clumps, leaves = _noise(rng, shape, 0.09 * p), _noise(rng, shape, 0.025 * p)
-    return _mask_from_score(field, clumps + 0.45 * leaves + 3.0 * _upsample_field(field, p), p)
+    score = clumps + 0.45 * leaves + 3.0 * _upsample_field(field, p)
+    if fine > 0.0:
+        score = score + fine * _noise(rng, shape, 0.6)
+    return score, clumps, leaves
+
+
+def weed_mask(field: np.ndarray, rng: np.random.Generator, texels_per_cell: int = 64,
+              palette: TexturePalette | None = None) -> np.ndarray:
+    """Boolean weed mask with exactly ``round(field[r, c] * texels_per_cell**2)`` texels per cell."""
+    field = _check(field, texels_per_cell)
+    fine = palette.fine_structure if palette is not None else 0.0
+    return _mask_from_score(field, _plant_score(field, rng, texels_per_cell, fine)[0], texels_per_cell)
 
 
 def weed_texture(
@@ -152,8 +185,8 @@ def weed_texture(
     shape = (field.shape[0] * p, field.shape[1] * p)
     # plants: clumps (~0.25 cell) with leaves (~0.05 cell) on top, drawn towards weedy
     # neighbours (the interpolated field) so patches do not end in straight cell borders
-    clumps, leaves = _noise(rng, shape, 0.09 * p), _noise(rng, shape, 0.025 * p)
-    mask = _mask_from_score(field, clumps + 0.45 * leaves + 3.0 * _upsample_field(field, p), p)
+    score, clumps, leaves = _plant_score(field, rng, p, pal.fine_structure)
+    mask = _mask_from_score(field, score, p)
 
     moisture = _noise(rng, shape, 0.6 * p)  # large damp/dry patches of soil
     patch = _noise(rng, shape, 0.15 * p)  # mid-scale: plant hue, clutter kind
@@ -187,4 +220,13 @@ def weed_texture(
     v[mask] = pal.weed_hsv[2] + pal.weed_jitter[2] * (0.8 * leaf + 0.3 * g)
 
     rgb = hsv_to_rgb(h, np.clip(s, 0.0, 1.0), np.clip(v, 0.04, 1.0))
+    if pal.margin_texels > 0 and mask.any() and (~mask).any():
+        # plant margins: leaf edges over soil, colours mixed (the weed/soil colour ranges overlap there)
+        depth = ndimage.distance_transform_cdt(mask, metric="chessboard")
+        ring = mask & (depth <= pal.margin_texels)
+        lo, hi = pal.margin_weed_share
+        share = lo + (hi - lo) * (0.5 + 0.5 * np.tanh(grain[ring]))
+        soil_rgb = hsv_to_rgb(np.full(share.shape, pal.soil_hsv[0]), np.full(share.shape, pal.soil_hsv[1]),
+                              np.full(share.shape, pal.soil_hsv[2]))
+        rgb[ring] = share[:, None] * rgb[ring] + (1.0 - share[:, None]) * soil_rgb
     return (rgb * 255.0 + 0.5).astype(np.uint8), mask

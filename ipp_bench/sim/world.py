@@ -1,62 +1,100 @@
 """Everything simulated for one grid: scene, flight, camera and its image processing.
 
 :class:`WeedWorld` is built once per environment (the model is compiled once);
-:meth:`WeedWorld.load_field` paints a new ground texture for each episode and
-:meth:`WeedWorld.read_camera` turns the current frame into a sensor read-out:
-the nominal footprint of :class:`~ipp_bench.sensor.Sensor` at the drone's actual
-position, restricted to the cells the camera really saw (tilt can cut edge cells
-off), with each cell's value the weed fraction of its pixels, then the sensor's
-binning and altitude noise (``Sensor.noisy_from_cell_values``).
+:meth:`WeedWorld.begin_episode` paints a new ground texture and draws the episode's conditions
+(sun, exposure, white balance, wind, state-estimation errors) from the episode's seed, and
+:meth:`WeedWorld.read_camera` turns the current frame into a sensor read-out: the nominal footprint
+of :class:`~ipp_bench.sensor.Sensor` at the drone's *estimated* position, restricted to the cells the
+camera really saw, with z the pipeline's estimate of each measurement (cell or binned block) and
+no synthetic noise on top (``SimConfig.measurement = "camera"``, v1). The v0 task keeps its
+behaviour: ideal camera, the sensor model's noise added (``"camera+noise"``), stop-and-go flight.
+``"truth"`` replaces the camera's values by the ground truth (the ablation that shows the camera
+matters).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ipp_bench.config import GridConfig, SensorConfig
 from ipp_bench.sensor import Observation, Sensor
+from ipp_bench.sim.camera import CameraModel, EpisodeConditions, form_image, motion_blur_px
 from ipp_bench.sim.controller import ControllerGains
-from ipp_bench.sim.flight import Flight
+from ipp_bench.sim.disturbance import DisturbanceConfig
+from ipp_bench.sim.flight import Flight, FlightConfig
 from ipp_bench.sim.quadrotor import QuadrotorParams
 from ipp_bench.sim.render import SceneRenderer
 from ipp_bench.sim.scene import SceneConfig, WeedScene
-from ipp_bench.sim.texture import weed_texture
-from ipp_bench.sim.vision import GroundProjector, HSVThreshold
+from ipp_bench.sim.texture import TexturePalette, weed_texture
+from ipp_bench.sim import vision_v0
+from ipp_bench.sim.vision import GroundProjector, WeedSegmenter
+
+MEASUREMENTS = ("camera", "camera+noise", "truth")
+
+#: the v0 camera: ideal optics and sensor, 128 px, no per-episode variation
+V0_CAMERA = CameraModel(image_size=128, psf_sigma_px=0.0, exposure_s=0.0, read_noise_dn=0.0, shot_noise_gain=0.0,
+                        exposure_jitter=0.0, white_balance_jitter=0.0, sun_zenith_deg=(0.0, 0.0))
 
 
 @dataclass(frozen=True)
 class SimConfig:
-    """Settings of the MuJoCo deployment that are not part of the IPP problem."""
+    """Settings of the MuJoCo deployment that are not part of the IPP problem (defaults: v1)."""
 
-    image_size: int = 128  # [px] side of the square measurement image
-    ramp_s: float = 1.0  # [s] velocity ramp at both ends of a leg
-    arrive_tol: float = 0.15  # [m] waypoint reached within this distance ...
-    settle_speed: float = 0.3  # [m/s] ... and below this speed
-    min_coverage: float = 0.5  # share of a cell the image must cover for the cell to count as seen
+    camera: CameraModel = CameraModel()
+    segmenter: WeedSegmenter = WeedSegmenter()
+    palette: TexturePalette = TexturePalette()
+    flight: FlightConfig = FlightConfig()
+    disturbances: DisturbanceConfig = DisturbanceConfig()
+    measurement: str = "camera"  # "camera" (v1) | "camera+noise" (v0) | "truth" (ablation)
+    pipeline: str = "opencv"  # "opencv" (v1) | "v0" (the v0 per-pixel numpy code, ipp_bench.sim.vision_v0)
+    pixel_binning: bool = True  # above the binning altitude the image is read out binned (v1)
+    min_coverage: float = 0.5  # [-] share of a cell the image must cover for the cell to count as seen
     scene: SceneConfig = SceneConfig()
     gains: ControllerGains = ControllerGains()
-    threshold: HSVThreshold = HSVThreshold()
 
     def __post_init__(self) -> None:
-        if not 16 <= self.image_size <= min(self.scene.max_render_size):
-            raise ValueError(f"SimConfig.image_size must be in [16, {min(self.scene.max_render_size)}] px, "
-                             f"got {self.image_size}")
-        for name in ("ramp_s", "arrive_tol", "settle_speed"):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f"SimConfig.{name} must be > 0, got {getattr(self, name)}")
+        if self.camera.image_size > min(self.scene.max_render_size):
+            raise ValueError(f"SimConfig.camera.image_size must be <= {min(self.scene.max_render_size)} px "
+                             f"(SceneConfig.max_render_size), got {self.camera.image_size}")
+        if self.pipeline not in ("opencv", "v0"):
+            raise ValueError(f"SimConfig.pipeline must be 'opencv' or 'v0', got {self.pipeline!r}")
+        if self.measurement not in MEASUREMENTS:
+            raise ValueError(f"SimConfig.measurement must be one of {MEASUREMENTS}, got {self.measurement!r}")
+        if not 0.0 < self.min_coverage <= 1.0:
+            raise ValueError(f"SimConfig.min_coverage must be in (0, 1], got {self.min_coverage}")
+
+    @property
+    def image_size(self) -> int:
+        return self.camera.image_size
+
+    def with_image_size(self, size: int) -> "SimConfig":
+        return dataclasses.replace(self, camera=dataclasses.replace(self.camera, image_size=int(size)))
+
+    @staticmethod
+    def v0() -> "SimConfig":
+        """The v0 deployment: ideal 128 px camera plus the sensor model's noise, stop at every waypoint."""
+        return SimConfig(camera=V0_CAMERA, segmenter=WeedSegmenter(open_px=0, close_px=0), palette=TexturePalette.v0(),
+                         flight=FlightConfig.v0(), disturbances=DisturbanceConfig.none(),
+                         measurement="camera+noise", pixel_binning=False, pipeline="v0")
 
 
 @dataclass(frozen=True)
 class CameraReading:
     """One camera frame and what was made of it."""
 
-    frame: np.ndarray  # (H, W, 3) uint8
-    weed_mask: np.ndarray  # (H, W) bool
+    frame: np.ndarray  # (h, w, 3) uint8 image as the camera delivered it (binned above the binning altitude)
+    weed_mask: np.ndarray  # (h, w) uint8 0/1
     fraction: np.ndarray  # (n,) weed fraction per cell (0 where unseen)
     seen: np.ndarray  # (n,) bool
-    body_xyz: np.ndarray  # (3,) drone position when the frame was taken [m]
+    body_xyz: np.ndarray  # (3,) true drone position when the frame was taken [m]
+    estimated_xyz: np.ndarray  # (3,) estimated drone position used for georeferencing [m]
+    binning: int  # read-out binning factor of the frame
+    footprint: np.ndarray | None = None  # (4, 2) ground corners of the frame from the estimated pose [m]
+    cell_pixels: dict | None = None  # seen cell -> (x, y) pixel of its centre in ``frame`` (estimated pose)
 
 
 class WeedWorld:
@@ -64,25 +102,56 @@ class WeedWorld:
 
     Args:
         grid: the map (same grid as the belief).
-        sensor: camera model; its ``fov_deg`` is the MuJoCo camera's field of view.
+        sensor: camera model of the belief; its ``fov_deg`` is the MuJoCo camera's field of view,
+            its binning altitude and factor decide the read-out binning.
         speed: cruise speed [m/s].
         cfg: deployment settings.
     """
 
     def __init__(self, grid: GridConfig, sensor: SensorConfig, speed: float = 2.0,
                  cfg: SimConfig = SimConfig()) -> None:
-        self.grid, self.cfg = grid, cfg
+        self.grid, self.cfg, self.sensor_cfg = grid, cfg, sensor
+        # one OpenCV thread per process, as for BLAS (ipp_bench._threads): on 2 shared cores a second
+        # thread only waits for the first; parallelism comes from worker processes
+        cv2.setNumThreads(1)
         self.quad = QuadrotorParams(camera_fovy_deg=sensor.fov_deg)
         self.scene = WeedScene(grid.rows, grid.cols, grid.resolution, self.quad, cfg.scene)
-        self.flight = Flight(self.scene, speed=speed, ramp_s=cfg.ramp_s, arrive_tol=cfg.arrive_tol,
-                             settle_speed=cfg.settle_speed, gains=cfg.gains)
+        self.flight = Flight(self.scene, speed=speed, cfg=cfg.flight, gains=cfg.gains,
+                             disturbances=cfg.disturbances)
         self.renderer = SceneRenderer(self.scene)
-        self.projector = GroundProjector(grid.rows, grid.cols, grid.resolution, cfg.image_size, cfg.image_size,
-                                         sensor.fov_deg, cfg.min_coverage)
+        size = cfg.camera.image_size
+        self._projectors: dict[int, GroundProjector] = {}
+        self._size = size
+        self._fov = sensor.fov_deg
+        self.conditions = EpisodeConditions.nominal()
+        self._v0_threshold = vision_v0.HSVThreshold()
+        self._pixel_rng = np.random.default_rng(0)
         self.weed_mask_truth: np.ndarray | None = None
         self._texture_key: tuple | None = None
         self.last_reading: CameraReading | None = None
+        self._sun0 = (self.scene.model.light_dir[self.scene.light_id].copy(),
+                      self.scene.model.light_diffuse[self.scene.light_id].copy(),
+                      self.scene.model.light_ambient[self.scene.light_id].copy())
 
+    def _v0_projector(self, shape) -> "vision_v0.GroundProjector":
+        key = ("v0", shape[:2])
+        p = self._projectors.get(key)
+        if p is None:
+            p = vision_v0.GroundProjector(self.grid.rows, self.grid.cols, self.grid.resolution, shape[1], shape[0],
+                                          self._fov, self.cfg.min_coverage)
+            self._projectors[key] = p
+        return p
+
+    def projector(self, binning: int) -> GroundProjector:
+        p = self._projectors.get(binning)
+        if p is None:
+            s = self._size // binning
+            p = GroundProjector(self.grid.rows, self.grid.cols, self.grid.resolution, s, s, self._fov,
+                                self.cfg.min_coverage)
+            self._projectors[binning] = p
+        return p
+
+    # -- episodes ---------------------------------------------------------------------------------
     def load_field(self, truth: np.ndarray, seed: int) -> None:
         """Paints the ground for ground truth ``truth`` (rows, cols); ``seed`` draws the texture.
 
@@ -91,32 +160,112 @@ class WeedWorld:
         truth = np.asarray(truth, dtype=np.float64)
         key = (truth.shape, truth.tobytes(), int(seed))
         if key != self._texture_key:
-            rgb, mask = weed_texture(truth, np.random.default_rng(int(seed)), self.cfg.scene.texels_per_cell)
+            rgb, mask = weed_texture(truth, np.random.default_rng(int(seed)), self.cfg.scene.texels_per_cell,
+                                     self.cfg.palette)
             self.scene.set_ground(rgb)
             self.weed_mask_truth = mask
             self._texture_key = key
         self.last_reading = None
 
-    def camera(self) -> CameraReading:
-        """Renders the downward camera at the drone's current pose and estimates per-cell weed fractions."""
-        size = self.cfg.image_size
-        frame = self.renderer.render(None, size, size)
-        weed = self.cfg.threshold(frame)
-        d, cam = self.scene.data, self.scene.camera_id
-        fraction, seen, _ = self.projector.cell_fractions(weed, d.cam_xpos[cam], d.cam_xmat[cam])
-        reading = CameraReading(frame, weed, fraction, seen, self.flight.position)
+    def begin_episode(self, truth: np.ndarray, seed: int) -> None:
+        """Texture, conditions (sun, exposure, white balance), wind and estimator errors of one episode.
+
+        Everything is drawn from ``seed``: the same seed gives the same episode, frame for frame.
+        """
+        ss = np.random.SeedSequence(int(seed))
+        tex_seed, cond_seed, pix_seed, dist_seed = (int(s.generate_state(1, np.uint64)[0]) for s in ss.spawn(4))
+        self.load_field(truth, tex_seed)
+        self.conditions = EpisodeConditions.draw(self.cfg.camera, np.random.default_rng(cond_seed))
+        self._pixel_rng = np.random.default_rng(pix_seed)
+        self._apply_sun()
+        self.flight.disturbance_seed = dist_seed
+
+    def _apply_sun(self) -> None:
+        """Sun direction into the scene's light; the auto-exposure normalises the ground's irradiance."""
+        m, i = self.scene.model, self.scene.light_id
+        d0, diff0, amb0 = self._sun0
+        sun = np.asarray(self.conditions.sun_dir)
+        m.light_dir[i] = sun
+        m.light_diffuse[i] = diff0
+        m.light_ambient[i] = amb0
+
+    def _exposure(self) -> float:
+        """Gain that an ideal auto-exposure applies: ground irradiance back to its overhead-sun value."""
+        _, diff0, amb0 = self._sun0
+        cos_z = max(-float(self.conditions.sun_dir[2]), 0.05)
+        return float((amb0[0] + diff0[0]) / (amb0[0] + diff0[0] * cos_z))
+
+    # -- camera -----------------------------------------------------------------------------------
+    def binning_at(self, altitude: float) -> int:
+        s = self.sensor_cfg
+        return s.binning if (self.cfg.pixel_binning and altitude > s.binning_altitude and s.binning > 1) else 1
+
+    def camera(self, binning: int | None = None) -> CameraReading:
+        """Renders the downward camera, forms the image, segments it and projects it with the estimated pose.
+
+        ``binning`` forces the read-out's binning factor (calibration); default: the sensor's rule
+        at the estimated altitude.
+        """
+        size = self.cfg.camera.image_size
+        raw = self.renderer.render(None, size, size)
+        est_pos, est_cam_pos, est_cam_mat = self.flight.estimated_camera_pose()
+        if binning is None:
+            binning = self.binning_at(float(est_pos[2]))
+        cam = self.cfg.camera
+        if cam.ideal:
+            frame = raw
+        else:
+            cond = dataclasses.replace(self.conditions, exposure_gain=self.conditions.exposure_gain * self._exposure())
+            proj = self.projector(1)
+            blur = motion_blur_px(cam, float(self.flight.position[2]), self.flight.velocity,
+                                  self.flight.angular_velocity, proj.focal) if cam.exposure_s > 0 else (0.0, 0.0)
+            frame = form_image(raw, cam, cond, self._pixel_rng, binning, blur)
+        proj = self.projector(binning)
+        if self.cfg.pipeline == "v0":
+            weed = self._v0_threshold(frame)
+            fraction, seen, _ = self._v0_projector(frame.shape).cell_fractions(weed, est_cam_pos, est_cam_mat)
+            weed = weed.astype(np.uint8)
+        else:
+            weed = self.cfg.segmenter(frame)
+            fraction, seen, _ = proj.cell_fractions(weed, est_cam_pos, est_cam_mat)
+        reading = CameraReading(frame, weed, fraction, seen, self.flight.position, est_pos, binning,
+                                proj.corners_on_ground(est_cam_pos, est_cam_mat),
+                                self._cell_pixels(seen, proj, est_cam_pos, est_cam_mat))
         self.last_reading = reading
         return reading
 
-    def read_camera(self, sensor: Sensor, rng: np.random.Generator) -> tuple[Observation | None, np.ndarray | None]:
-        """A sensor read-out from the camera: (Observation, z), or (None, None) when nothing usable was seen."""
+    def _cell_pixels(self, seen: np.ndarray, proj: GroundProjector, cam_pos, cam_mat) -> dict:
+        """Seen cell -> (x, y) pixel of its centre in the frame (the demo writes the fractions there)."""
+        cells = np.flatnonzero(seen)
+        res = self.grid.resolution
+        pts = np.stack([(cells % self.grid.cols + 0.5) * res, (cells // self.grid.cols + 0.5) * res,
+                        np.zeros(cells.size)], axis=1)
+        uv = proj.to_image(pts, cam_pos, cam_mat)
+        return {int(c): (float(u), float(v)) for c, (u, v) in zip(cells, uv) if np.isfinite(u)}
+
+
+    def read_camera(self, sensor: Sensor, rng: np.random.Generator,
+                    truth: np.ndarray | None = None) -> tuple[Observation | None, np.ndarray | None]:
+        """A sensor read-out from the camera: (Observation, z), or (None, None) when nothing usable was seen.
+
+        The read-out's layout (cells, H, R) is the sensor model's at the estimated position; z is
+        H times the camera's per-cell fractions ("camera"), plus the sensor model's noise
+        ("camera+noise", v0), or H times the ground truth ``truth`` ("truth").
+        """
         reading = self.camera()
-        obs = sensor.observe(reading.body_xyz)
+        obs = sensor.observe(reading.estimated_xyz)
         if obs is None:
             return None, None
         obs = restrict(obs, reading.seen)
         if obs is None:
             return None, None
+        mode = self.cfg.measurement
+        if mode == "camera":
+            return obs, obs.weights @ reading.fraction[obs.cells]
+        if mode == "truth":
+            if truth is None:
+                raise ValueError("SimConfig.measurement = 'truth' needs the ground truth")
+            return obs, obs.weights @ np.asarray(truth, dtype=np.float64).reshape(-1)[obs.cells]
         return obs, sensor.noisy_from_cell_values(obs, reading.fraction, rng)
 
     def close(self) -> None:

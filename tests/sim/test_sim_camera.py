@@ -10,15 +10,22 @@ from ipp_bench.fields import make_field  # noqa: E402
 from ipp_bench.sensor import Sensor  # noqa: E402
 from ipp_bench.sim import gl  # noqa: E402
 from ipp_bench.sim.render import SceneRenderer  # noqa: E402
-from ipp_bench.sim.texture import weed_mask, weed_texture  # noqa: E402
-from ipp_bench.sim.vision import GroundProjector, HSVThreshold, rgb_to_hsv  # noqa: E402
-from ipp_bench.sim.world import WeedWorld, restrict  # noqa: E402
+from ipp_bench.sim.texture import TexturePalette, weed_mask, weed_texture  # noqa: E402
+from ipp_bench.sim.vision import GroundProjector, WeedSegmenter, rgb_to_hsv  # noqa: E402
+from ipp_bench.sim.world import SimConfig, WeedWorld, restrict  # noqa: E402
 
 GRID = GridConfig()
 
 
 @pytest.fixture(scope="module")
 def world():
+    w = WeedWorld(GRID, SensorConfig(), cfg=SimConfig.v0())
+    yield w
+    w.close()
+
+
+@pytest.fixture(scope="module")
+def world_v1():
     w = WeedWorld(GRID, SensorConfig())
     yield w
     w.close()
@@ -43,28 +50,84 @@ def test_texture_has_exact_cell_fractions_and_depends_on_the_seed():
 def test_threshold_agrees_with_the_hsv_definition():
     rng = np.random.default_rng(0)
     img = rng.integers(0, 256, (200, 200, 3), dtype=np.uint8)
-    th = HSVThreshold()
+    seg = WeedSegmenter(open_px=0, close_px=0)
     hsv = rgb_to_hsv(img)
-    ref = ((hsv[..., 0] >= th.hue_min) & (hsv[..., 0] <= th.hue_max)
-           & (hsv[..., 1] >= th.sat_min) & (hsv[..., 2] >= th.val_min))
-    # the threshold works in exact integer arithmetic; float HSV differs only on range borders
-    assert np.mean(th(img) != ref) < 1e-3
-    texture, mask = weed_texture(make_field("weed_patches", GRID, rng), rng, 16)
-    assert np.mean(th(texture) == mask) > 0.97  # on the texels themselves: soil clutter stays out
+    ref = ((hsv[..., 0] >= seg.hue_min) & (hsv[..., 0] <= seg.hue_max)
+           & (hsv[..., 1] >= seg.sat_min) & (hsv[..., 2] >= seg.val_min))
+    # OpenCV's 8-bit HSV rounds hue to 2 deg and s, v to 1/255: only pixels on the range borders differ
+    assert np.mean(seg(img).astype(bool) != ref) < 0.01
+    texture, mask = weed_texture(make_field("weed_patches", GRID, rng), rng, 16, TexturePalette.v0())
+    assert np.mean(seg(texture).astype(bool) == mask) > 0.97  # on the texels themselves: soil clutter stays out
+
+
+def test_closing_fills_a_one_pixel_gap_and_keeps_a_blob():
+    img = np.zeros((40, 40, 3), np.uint8)
+    img[...] = (110, 80, 50)  # soil
+    img[10:30, 10:30] = (60, 140, 40)  # a plant ...
+    img[19, 10:30] = (110, 80, 50)  # ... with a one-pixel soil line through it
+    closed = WeedSegmenter(open_px=0, close_px=3)(img)
+    raw = WeedSegmenter(open_px=0, close_px=0)(img)
+    assert raw[19, 20] == 0 and closed[19, 20] == 1
+    assert closed[19, 11:29].all() and raw.sum() == 380
+    assert 398 <= closed.sum() <= 400  # the gap's two ends open onto the soil: a closing may keep them
+
+
+def _reference_fractions(mask, cam_pos, cam_mat, fovy=60.0, res=2.5, n=15):
+    """Per-pixel ray casting onto z = 0 (the maths the homography must reproduce)."""
+    h, w = mask.shape
+    f = (h / 2) / np.tan(np.radians(fovy) / 2)
+    u = (np.arange(w) + 0.5 - w / 2) / f
+    v = (np.arange(h) + 0.5 - h / 2) / f
+    uu, vv = np.meshgrid(u, v)
+    rays = np.stack([uu.ravel(), -vv.ravel(), -np.ones(uu.size)], 1) @ np.asarray(cam_mat).T
+    t = -cam_pos[2] / rays[:, 2]
+    x, y = cam_pos[0] + t * rays[:, 0], cam_pos[1] + t * rays[:, 1]
+    c, r = np.floor(x / res).astype(int), np.floor(y / res).astype(int)
+    ok = (c >= 0) & (c < n) & (r >= 0) & (r < n)
+    idx = r[ok] * n + c[ok]
+    counts = np.bincount(idx, minlength=n * n)
+    hits = np.bincount(idx, weights=mask.ravel()[ok].astype(float), minlength=n * n)
+    return hits / np.maximum(counts, 1), counts
 
 
 def test_projection_straight_down_matches_the_footprint():
     proj = GroundProjector(15, 15, 2.5, 128, 128, 60.0)
-    cells = proj.pixel_cells(np.array([18.75, 18.75, 8.0]), np.eye(3))
-    sensor = Sensor(GRID, SensorConfig())
-    obs = sensor.observe([18.75, 18.75, 8.0])
-    hit = np.unique(cells[cells >= 0])
-    assert set(obs.cells) <= set(hit)  # every cell of the nominal footprint is in the image
-    counts = np.bincount(cells[cells >= 0], minlength=225)
+    pos = np.array([18.75, 18.75, 8.0])
+    ones = np.ones((128, 128), np.uint8)
+    frac, seen, cover = proj.cell_fractions(ones, pos, np.eye(3))
+    obs = Sensor(GRID, SensorConfig()).observe(pos)
+    assert set(obs.cells) <= set(np.flatnonzero(seen))  # every cell of the nominal footprint is seen
+    np.testing.assert_allclose(frac[seen], 1.0, atol=1e-5)
     centre = 7 * 15 + 7
-    assert counts[centre] == pytest.approx(proj.expected_pixels(8.0), rel=0.1)
-    # image row 0 is north (+y), column 0 is west (x small)
-    assert cells[0] // 15 > cells[-1] // 15 and cells[0] % 15 < cells[-1] % 15
+    assert cover[centre] == pytest.approx(1.0, abs=1e-3)
+    # footprint side 2 h tan(30 deg) = 9.24 m: the covered ground area equals the footprint's
+    assert cover.sum() * 2.5 ** 2 == pytest.approx((2 * 8.0 * np.tan(np.radians(30))) ** 2, rel=0.02)
+    # image column 0 is west (small x), row 0 is north (large y)
+    west = np.zeros((128, 128), np.uint8)
+    west[:, :64] = 1
+    frac, seen, _ = proj.cell_fractions(west, pos, np.eye(3))
+    assert frac[7 * 15 + 6] == pytest.approx(1.0, abs=1e-3) and frac[7 * 15 + 8] == pytest.approx(0.0, abs=1e-3)
+    assert frac[centre] == pytest.approx(0.5, abs=0.02)  # the centre cell straddles x = 18.75
+    north = np.zeros((128, 128), np.uint8)
+    north[:64] = 1
+    frac, _, _ = proj.cell_fractions(north, pos, np.eye(3))
+    assert frac[8 * 15 + 7] == pytest.approx(1.0, abs=1e-3) and frac[6 * 15 + 7] == pytest.approx(0.0, abs=1e-3)
+
+
+def test_homography_matches_per_pixel_ray_casting_for_a_tilted_camera():
+    rng = np.random.default_rng(4)
+    mask = (rng.random((16, 16)) > 0.5).astype(np.uint8).repeat(16, 0).repeat(16, 1)  # 256 x 256 blocks
+    a, b = np.radians(12.0), np.radians(-7.0)  # roll about x, pitch about y
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    R = Rx @ Ry
+    pos = np.array([17.0, 19.5, 10.0])
+    proj = GroundProjector(15, 15, 2.5, 256, 256, 60.0)
+    frac, seen, cover = proj.cell_fractions(mask, pos, R)
+    ref, counts = _reference_fractions(mask, pos, R)
+    full = cover > 0.95
+    assert full.sum() >= 9
+    np.testing.assert_allclose(frac[full], ref[full], atol=0.03)
 
 
 def test_renderer_is_lazy_and_closes(world):
@@ -108,6 +171,23 @@ def test_threshold_fractions_at_8m_have_rmse_below_0_1(world, seed):
     assert _rmse(world, truth, 14.0, positions[:3]) < 0.1
 
 
+def test_v1_camera_error_grows_from_8m_to_14m_binned(world_v1):
+    """The realistic camera: error within reason, larger at 14 m read out 2 x 2 binned than at 8 m."""
+    errs = {8.0: [], 14.0: []}
+    for seed in (0, 1):
+        truth = make_field("weed_patches", GRID, np.random.default_rng(50 + seed))
+        world_v1.begin_episode(truth, 70 + seed)
+        for x, y in [(6.25, 6.25), (18.75, 18.75), (31.25, 8.75), (11.25, 28.75), (26.25, 26.25)]:
+            for h in errs:
+                world_v1.flight.reset([x, y, h])
+                r = world_v1.camera()
+                assert r.binning == (2 if h > 10 else 1)
+                errs[h].append(r.fraction[r.seen] - truth.reshape(-1)[r.seen])
+    rmse = {h: float(np.sqrt(np.mean(np.concatenate(e) ** 2))) for h, e in errs.items()}
+    assert 0.02 < rmse[8.0] < 0.15 and 0.02 < rmse[14.0] < 0.2
+    assert rmse[14.0] > rmse[8.0]
+
+
 def test_new_field_is_uploaded_to_the_open_renderer(world):
     world.scene.reset([18.75, 18.75, 8.0])
     world.load_field(np.zeros((15, 15)), 0)
@@ -129,6 +209,9 @@ def test_read_camera_uses_sensor_binning_and_drops_unseen_rows(world):
     nominal = sensor.observe([18.75, 18.75, 8.0])
     assert obs.m == nominal.m and z.shape == (obs.m,)
     np.testing.assert_allclose(obs.var, sensor.noise_variance(8.0))
+    # v0 adds the sensor model's noise to the camera's values; v1 does not
+    v0_residual = z - obs.weights @ world.last_reading.fraction[obs.cells]
+    assert np.std(v0_residual) > 0.5 * np.sqrt(sensor.noise_variance(8.0))
     world.scene.reset([18.75, 18.75, 14.0])
     obs, z = world.read_camera(sensor, rng)
     assert np.all(np.isclose(obs.weights[obs.weights > 0], 0.25) | np.isclose(obs.weights[obs.weights > 0], 0.5)
@@ -149,3 +232,27 @@ def test_backend_is_chosen_before_mujoco_is_imported():
             "import ipp_bench.sim.scene; print(os.environ['MUJOCO_GL'])")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() in ("egl", "osmesa")
+
+
+def test_v1_measurement_is_the_pipelines_estimate_without_added_noise(world_v1):
+    truth = make_field("weed_patches", GRID, np.random.default_rng(9))
+    world_v1.begin_episode(truth, 9)
+    sensor = Sensor(GRID, SensorConfig())
+    world_v1.flight.reset([18.75, 18.75, 14.0])
+    obs, z = world_v1.read_camera(sensor, np.random.default_rng(0), truth)
+    np.testing.assert_array_equal(z, obs.weights @ world_v1.last_reading.fraction[obs.cells])
+    # the nominal footprint is placed at the estimated position, not the true one
+    r = world_v1.last_reading
+    assert not np.allclose(r.estimated_xyz, r.body_xyz)
+
+
+def test_same_episode_seed_same_frames(world_v1):
+    truth = make_field("weed_patches", GRID, np.random.default_rng(3))
+    frames = []
+    for seed in (11, 11, 12):
+        world_v1.begin_episode(truth, seed)
+        world_v1.flight.reset([12.0, 20.0, 8.0])
+        world_v1.flight.hover(0.2)
+        frames.append(world_v1.camera().frame)
+    np.testing.assert_array_equal(frames[0], frames[1])
+    assert not np.array_equal(frames[0], frames[2])

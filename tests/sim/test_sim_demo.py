@@ -65,3 +65,29 @@ def test_bad_arguments_exit_2(tmp_path, bad, capsys):
     argv = [*SHORT, "--out", str(tmp_path / "d.mp4"), *bad]
     assert run_demo(_args(*argv)) == 2
     assert "error" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bad", [["--crf", "52"], ["--crf", "-1"], ["--compare", "nope"],
+                                 ["--compare", "coverage", "--compare-out", "plot.jpg"]])
+def test_bad_crf_and_compare_are_refused_before_flying(tmp_path, bad, capsys, monkeypatch):
+    import ipp_bench.sim.demo as demo
+
+    flown = []
+    monkeypatch.setattr(demo, "record", lambda *a, **k: flown.append(1))  # nothing may fly
+    argv = [*SHORT, "--out", str(tmp_path / "d.mp4"), *bad]
+    assert run_demo(_args(*argv)) == 2
+    assert "error" in capsys.readouterr().err and not flown
+
+
+def test_unwritable_output_is_refused_before_flying(tmp_path, capsys, monkeypatch):
+    import ipp_bench.sim.demo as demo
+
+    flown = []
+    monkeypatch.setattr(demo, "record", lambda *a, **k: flown.append(1))
+    (tmp_path / "taken").write_text("a file where a folder should be")
+    argv = [*SHORT, "--out", str(tmp_path / "taken" / "d.mp4")]
+    assert run_demo(_args(*argv)) == 2
+    assert "cannot create its folder" in capsys.readouterr().err and not flown
+    argv = [*SHORT, "--out", str(tmp_path / "ok.mp4"), "--compare", "coverage", "--compare-out",
+            str(tmp_path / "taken" / "c.png")]
+    assert run_demo(_args(*argv)) == 2 and not flown

@@ -12,17 +12,19 @@ import pytest
 
 pytest.importorskip("mujoco")
 
+import ipp_bench.envs as envs  # noqa: E402
 from ipp_bench.eval.runner import run_episode  # noqa: E402
 from ipp_bench.planners import planner_names  # noqa: E402
 
-TASK = "ipp_bench/MuJoCoWeed15-v0"
+MUJOCO_TASKS = sorted(t for t, s in envs.TASKS.items() if s.entry_point.startswith("ipp_bench.sim"))
 # cheap settings: the budget's end, not the quality of the look-ahead, is under test
 CHEAP = {"mcts": "mcts:simulations=8", "cmaes": "cmaes:max_evals=24"}
 
 
 @pytest.fixture(scope="module")
-def envs_by_budget():
-    made = {b: gym.make(TASK, budget_s=b, image_size=48).unwrapped for b in (12.0, 17.0)}
+def envs_by_task_and_budget():
+    made = {(t, b): gym.make(t, budget_s=b, report_times=[b], image_size=48).unwrapped
+            for t in MUJOCO_TASKS for b in (12.0, 17.0)}
     yield made
     for e in made.values():
         e.close()
@@ -30,12 +32,13 @@ def envs_by_budget():
 
 @pytest.mark.parametrize("planner", planner_names())
 @pytest.mark.parametrize("budget", [12.0, 17.0])
-def test_every_planner_flies_to_the_end_of_the_budget(envs_by_budget, planner, budget):
+@pytest.mark.parametrize("task", MUJOCO_TASKS)
+def test_every_planner_flies_to_the_end_of_the_budget(envs_by_task_and_budget, task, planner, budget):
     if planner == "attention":
         pytest.importorskip("torch")
-    env = envs_by_budget[budget]
+    env = envs_by_task_and_budget[(task, budget)]
     for seed in (0, 1, 2, 3):
-        result = run_episode(TASK, CHEAP.get(planner, planner), seed, env=env)
+        result = run_episode(task, CHEAP.get(planner, planner), seed, env=env)
         mission = env.mission
         assert result.decisions >= 1
         assert mission.time_s <= mission.budget_s + 1e-9

@@ -89,7 +89,8 @@ def bench_training(args) -> list[dict]:
 
     from ipp_bench.policies.network import AttentionNet
     from ipp_bench.policies.sb3 import AttentionPolicy
-    from ipp_bench.policies.train import BCDataset, TrainArgs, _vec_env, collect_episodes, fit_bc, make_env, make_expert
+    from ipp_bench.policies.train import TrainArgs, _vec_env, make_env
+    from ipp_bench.policies.warmstart import BCDataset, collect_episodes, fit_bc, make_expert
 
     cfg = TrainArgs(n_envs=5, n_steps=128, n_epochs=args.n_epochs, batch_size=128)
     venv = _vec_env(cfg)

@@ -70,6 +70,12 @@ class AttentionPlanner(GraphPlanner):
         self._checked_shape: tuple | None = None
 
     def reset(self, view: RobotView, seed: int) -> None:
+        """Refuses (CheckpointError, one line) a checkpoint whose inputs differ from the task's."""
+        from ..policies.checkpoint import check_config
+
+        # pe_dim is the task's; the node features are checked on the first observation (_check).
+        check_config(self.net, self.net.cfg.node_dim, view.config.graph.pe_dim,
+                     f"attention checkpoint {self.config.checkpoint or '(shipped)'}")
         super().reset(view, seed)
 
     def _check(self, obs: dict[str, np.ndarray]) -> None:

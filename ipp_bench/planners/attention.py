@@ -98,6 +98,10 @@ class AttentionPlanner(GraphPlanner):
         return p / p.sum()
 
     def _logits(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        if self.net.cfg.node_dim == 6 and np.shape(obs["node_features"])[-1] == 5:
+            from ..policies.features import add_gain_feature  # trained with the look-gain feature
+
+            obs = add_gain_feature(obs, self.view)
         self._check(obs)
         torch = self._torch
         mask = np.asarray(obs["action_mask"]).astype(bool).reshape(-1)

@@ -63,6 +63,7 @@ import numpy as np
 import torch
 
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, gain_feature_wrapper
 from ipp_bench.policies.network import AttentionNet, NetConfig
 from ipp_bench.policies.warmstart import check_expert, warm_start
 
@@ -112,6 +113,8 @@ class TrainArgs:
     embed_dim: int = opt(128, "d, the embedding size (CAtNIPP / paper)", NET)
     n_heads: int = opt(4, "attention heads", NET)
     ff_dim: int = opt(512, "feed-forward width", NET)
+    gain_feature: bool = opt(False, "add the look-gain node feature (ipp_bench.policies.features): the predicted "
+                                    "ROI trace reduction of one look from every node", NET)
     warm_start: str = opt("none", "roadmap planner to imitate before PPO, e.g. greedy; 'none' to skip", WARM)
     bc_episodes: int = opt(100, "expert episodes of round 0", WARM)
     bc_rounds: int = opt(2, "DAgger rounds after round 0", WARM)
@@ -128,7 +131,8 @@ class TrainArgs:
     progress: bool = opt(True, "draw a progress bar (SB3's ProgressBarCallback)", VAL)
 
     def net_config(self) -> NetConfig:
-        return NetConfig(embed_dim=self.embed_dim, n_heads=self.n_heads, ff_dim=self.ff_dim)
+        return NetConfig(node_dim=GAIN_NODE_DIM if self.gain_feature else BASE_NODE_DIM,
+                         embed_dim=self.embed_dim, n_heads=self.n_heads, ff_dim=self.ff_dim)
 
 
 # Options that may change when resuming a run; all others must match the saved config.
@@ -151,9 +155,11 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
         default = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
         flag = "--" + f.name.replace("_", "-")
         kwargs: dict[str, Any] = {"default": None, "dest": f.name, **meta}
-        if f.type in ("bool", bool):
-            flag = "--no-" + f.name.replace("_", "-")
-            kwargs.update(action="store_false", help=f"do not {meta['help']}" if default else meta["help"])
+        if f.type in ("bool", bool):  # --name when it defaults to False, --no-name when to True
+            if default:
+                flag = "--no-" + f.name.replace("_", "-")
+            kwargs.update(action="store_false" if default else "store_true",
+                          help=f"do not {meta['help']}" if default else meta["help"])
         elif f.type in ("list[str]",):
             kwargs.update(action="append", help=meta["help"])
         else:
@@ -181,8 +187,8 @@ def command_line(cfg: TrainArgs) -> str:
             continue
         flag = "--" + f.name.replace("_", "-")
         if isinstance(val, bool):
-            if not val:
-                parts.append("--no-" + f.name.replace("_", "-"))
+            if val != f.default:
+                parts.append(flag if val else "--no-" + f.name.replace("_", "-"))
         elif isinstance(val, list):
             for item in val:
                 parts += [flag, str(item)]
@@ -281,8 +287,9 @@ def parse_env_overrides(items: list[str]) -> dict[str, Any]:
 
 
 def make_train_env(cfg: TrainArgs):
-    """The training task with the run's ``--env`` overrides."""
-    return make_env(cfg.task, **parse_env_overrides(cfg.env))
+    """The training task with the run's ``--env`` overrides (and the look-gain feature if asked for)."""
+    env = make_env(cfg.task, **parse_env_overrides(cfg.env))
+    return gain_feature_wrapper(env) if cfg.gain_feature else env
 
 
 def evaluate_net(net: AttentionNet, task: str, episodes: int, seed0: int = VAL_SEED0,

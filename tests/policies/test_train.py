@@ -64,7 +64,8 @@ def test_command_line_round_trips_through_the_parser():
     import argparse
     import shlex
 
-    cfg = TrainArgs(total_steps=1234, warm_start="greedy", learning_rate=3e-5, progress=False)
+    cfg = TrainArgs(total_steps=1234, warm_start="greedy", learning_rate=3e-5, progress=False, gain_feature=True)
+    assert "--gain-feature" in command_line(cfg) and "--no-progress" in command_line(cfg)
     argv = shlex.split(command_line(cfg))[2:]
     ns = add_train_arguments(argparse.ArgumentParser()).parse_args(argv)
     parsed = {k: v for k, v in vars(ns).items() if k in TrainArgs.__dataclass_fields__ and v is not None}

@@ -115,6 +115,8 @@ class TrainArgs:
     ff_dim: int = opt(512, "feed-forward width", NET)
     gain_feature: bool = opt(False, "add the look-gain node feature (ipp_bench.policies.features): the predicted "
                                     "ROI trace reduction of one look from every node", NET)
+    init: str = opt("", "start from the weights of this exported checkpoint (.pt, e.g. an earlier run's "
+                        "warmstart/bc.pt): the warm start fine-tunes them, or PPO starts from them", NET)
     warm_start: str = opt("none", "roadmap planner to imitate before PPO, e.g. greedy; 'none' to skip", WARM)
     bc_episodes: int = opt(100, "expert episodes of round 0", WARM)
     bc_rounds: int = opt(2, "DAgger rounds after round 0", WARM)
@@ -218,6 +220,11 @@ def _check(cfg: TrainArgs) -> None:
     if cfg.device.startswith("cuda") and not torch.cuda.is_available():
         raise ValueError(f"--device {cfg.device} asked for but torch sees no CUDA device; use --device cpu")
     cfg.net_config()  # validates the network sizes
+    if cfg.init:
+        init_net = load_init(cfg)
+        if init_net.cfg != cfg.net_config():
+            raise ValueError(f"--init {cfg.init}: its network is {init_net.cfg}, the options give "
+                             f"{cfg.net_config()} (match --embed-dim, --n-heads, --ff-dim, --gain-feature)")
     if cfg.warm_start != "none":
         check_expert(cfg.warm_start)
     import gymnasium as gym
@@ -233,6 +240,15 @@ def _check(cfg: TrainArgs) -> None:
         make_train_env(cfg).close()  # a bad override fails now, with the config's message
     except (ValueError, TypeError) as err:
         raise ValueError(f"--task {cfg.task} with --env {cfg.env}: {err}") from None
+
+
+def load_init(cfg: TrainArgs, device: str | torch.device = "cpu") -> AttentionNet:
+    """The network of ``--init`` (ValueError with the checkpoint's own message if unreadable)."""
+    try:
+        net, _ = load_checkpoint(cfg.init, device=device)
+    except CheckpointError as err:
+        raise ValueError(f"--init: {err}") from None
+    return net
 
 
 def _resolve_device(name: str) -> torch.device:
@@ -482,10 +498,11 @@ def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: dict, bc_path: P
             clip_range=cfg.clip_range, ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef,
             max_grad_norm=cfg.max_grad_norm, target_kl=cfg.target_kl or None,
             policy_kwargs={"net_config": cfg.net_config().to_dict()}, seed=cfg.seed, device=device, verbose=0)
-        if bc_path is not None:
-            net, _ = load_checkpoint(bc_path, device=device)
+        start = bc_path if bc_path is not None else (Path(cfg.init) if cfg.init else None)
+        if start is not None:
+            net, _ = load_checkpoint(start, device=device)
             model.policy.attention_net().load_state_dict(net.state_dict())
-            say(f"PPO starts from the warm-start weights {bc_path}")
+            say(f"PPO starts from the weights {start}")
         state["ppo_steps"] = 0
     model.set_logger(_logger(run))
     remaining = cfg.total_steps - model.num_timesteps
@@ -608,8 +625,10 @@ def run_train(args: argparse.Namespace) -> int:
         if cfg.warm_start != "none":
             bc_path = run / "warmstart" / "bc.pt"
             if not state.get("bc_done"):
+                init = load_init(cfg, device) if cfg.init else None
                 net, val = warm_start(cfg, run, device, say, make_env=lambda: make_train_env(cfg),
-                                      validate=lambda n: _validation(n, cfg), net_config=cfg.net_config())
+                                      validate=lambda n: _validation(n, cfg), net_config=cfg.net_config(),
+                                      init=init)
                 progress = json.loads((run / "warmstart" / "progress.json").read_text())
                 state.update(bc_done=True, bc_wall_s=progress["wall_s"])
                 # The warm-start policy is the first candidate for export.pt; PPO must beat it.

@@ -257,7 +257,7 @@ def _load_chunk(data: BCDataset, path: Path) -> None:
 
 def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], None],
                make_env: Callable[[], Any], validate: Callable[[AttentionNet], dict[str, float]],
-               net_config: NetConfig) -> tuple[AttentionNet, dict[str, float]]:
+               net_config: NetConfig, init: AttentionNet | None = None) -> tuple[AttentionNet, dict[str, float]]:
     """Behaviour cloning (DAgger) from ``cfg.warm_start``; writes ``warmstart/bc.pt``; resumable.
 
     Args:
@@ -268,6 +268,7 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
         make_env: builds the training environment.
         validate: validation figures of a network (``val/score``, ``val/unc_red_<t>s``, ...).
         net_config: sizes of the network.
+        init: weights to start from (``--init``) instead of a fresh initialisation.
     """
     out = run / "warmstart"
     out.mkdir(exist_ok=True)
@@ -277,6 +278,8 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
     expert = make_expert(cfg.warm_start)
     torch.manual_seed(cfg.seed)
     net = AttentionNet(net_config).to(device)
+    if init is not None:
+        net.load_state_dict(init.state_dict())
     data = BCDataset()
     rng = np.random.default_rng(cfg.seed)
     log_path = out / "bc_log.csv"

@@ -142,3 +142,20 @@ def test_interrupted_warm_start_resumes_to_the_same_weights(tmp_path):
     a = torch.load(run / "warmstart" / "bc.pt", weights_only=True)["state_dict"]
     b = torch.load(ref / "warmstart" / "bc.pt", weights_only=True)["state_dict"]
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_init_checkpoint_must_match_the_network_options(tmp_path):
+    import torch
+
+    from ipp_bench.policies.checkpoint import save_checkpoint
+    from ipp_bench.policies.network import AttentionNet, NetConfig
+
+    torch.manual_seed(0)
+    init = tmp_path / "init.pt"
+    save_checkpoint(AttentionNet(NetConfig(embed_dim=16, n_heads=2, ff_dim=32)), init)
+    run = tmp_path / "run"
+    proc = _train(*TINY, "--gain-feature", "--init", str(init), "--out", str(run), check=False)
+    assert proc.returncode == 2 and "--init" in proc.stderr and "node_dim=5" in proc.stderr and not run.exists()
+    proc = _train(*TINY, "--init", str(tmp_path / "missing.pt"), "--out", str(run), check=False)
+    assert proc.returncode == 2 and "not found" in proc.stderr and not run.exists()
+    _train(*TINY, "--init", str(init), "--total-steps", "32", "--out", str(run))

@@ -22,7 +22,7 @@ from ipp_bench.policies.network import AttentionNet, NetConfig
 
 FORMAT = "ipp_bench.attention/1"
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
-SHIPPED_CHECKPOINT = CHECKPOINT_DIR / "attention_grid15.pt"
+SHIPPED_CHECKPOINT = CHECKPOINT_DIR / "attention_v1.pt"  # v0: attention_grid15.pt (still shipped)
 
 
 class CheckpointError(ValueError):

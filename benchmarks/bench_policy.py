@@ -2,15 +2,17 @@
 
 Usage::
 
-    python benchmarks/bench_policy.py                  # everything, ~2 minutes on 2 cores
+    python benchmarks/bench_policy.py                  # everything, a few minutes on 2 cores
     python benchmarks/bench_policy.py --skip-training  # decision times only
     python benchmarks/bench_policy.py --mcts-decisions 5
 
 Figures:
 
-- per-decision time of the ``attention`` planner (observation -> action, one forward pass) on
-  Grid15Eval (450 nodes) and Grid20Eval (800 nodes), with 1 and 2 torch threads, median and p90;
-- the same for ``greedy`` and ``mcts`` in the same run (MCTS on a few decisions), and the ratio;
+- per-decision time of the ``attention`` planner (observation -> action: the look-gain feature
+  where the checkpoint uses it, and one forward pass) on Grid15Eval-v1 (450 nodes), Grid20Eval-v1
+  (800) and Grid30Eval-v1 (1800), one torch thread by default, median and p90;
+- the same for ``greedy`` and MCTS (the leaderboard's ``mcts:simulations=24``, a few decisions)
+  at 450 and 1800 nodes in the same run, and the ratio;
 - training throughput of ``ipp-bench train``'s PPO phase (environment steps per second, rollout
   and update together) with the shipped checkpoint's settings, and of the warm-start fit.
 """
@@ -25,6 +27,9 @@ import sys
 import time
 
 import numpy as np
+
+
+TASKS = (("ipp_bench/Grid15Eval-v1", 450), ("ipp_bench/Grid20Eval-v1", 800), ("ipp_bench/Grid30Eval-v1", 1800))
 
 
 def _decisions(planner_spec: str, task: str, n: int, seed: int = 0) -> np.ndarray:
@@ -60,26 +65,31 @@ def _row(name: str, t: np.ndarray) -> dict:
 
 def bench_decisions(args) -> list[dict]:
     rows = []
-    for threads in (1, 2):
-        spec = f"attention:threads={threads}"
-        for task, nodes in (("ipp_bench/Grid15Eval-v0", 450), ("ipp_bench/Grid20Eval-v0", 800)):
+    ckpt = f",checkpoint={args.checkpoint}" if args.checkpoint else ""
+    for threads in args.decision_threads:
+        spec = f"attention:threads={threads}{ckpt}"
+        for task, nodes in TASKS:
             _decisions(spec, task, 20)  # warm-up
             t = _decisions(spec, task, args.decisions)
             rows.append(_row(f"attention, {nodes} nodes, {threads} thread(s)", t))
             print(_fmt(rows[-1]), flush=True)
-    t = _decisions("greedy", "ipp_bench/Grid15Eval-v0", args.decisions)
-    rows.append(_row("greedy, 450 nodes", t))
-    print(_fmt(rows[-1]), flush=True)
+    for task, nodes in TASKS[:: len(TASKS) - 1]:
+        t = _decisions("greedy", task, args.decisions)
+        rows.append(_row(f"greedy, {nodes} nodes", t))
+        print(_fmt(rows[-1]), flush=True)
     if args.mcts_decisions > 0:
-        try:
-            t = _decisions("mcts", "ipp_bench/Grid15Eval-v0", args.mcts_decisions)
-        except (ValueError, ImportError, ModuleNotFoundError) as err:
-            print(f"mcts not measured: {err}")
-        else:
-            rows.append(_row("mcts (default settings), 450 nodes", t))
-            print(_fmt(rows[-1]), flush=True)
-            att = next(r for r in rows if r["what"] == "attention, 450 nodes, 1 thread(s)")
-            print(f"MCTS / attention median per-decision time: {rows[-1]['median_ms'] / att['median_ms']:.0f}x")
+        for spec in args.mcts:
+            for task, nodes in TASKS[:: len(TASKS) - 1]:
+                try:
+                    t = _decisions(spec, task, args.mcts_decisions)
+                except (ValueError, ImportError, ModuleNotFoundError) as err:
+                    print(f"{spec} not measured: {err}")
+                    continue
+                rows.append(_row(f"{spec}, {nodes} nodes", t))
+                print(_fmt(rows[-1]), flush=True)
+                att = next(r for r in rows if r["what"] == f"attention, {nodes} nodes, {args.decision_threads[0]} thread(s)")
+                print(f"{spec} / attention median per-decision time at {nodes} nodes: "
+                      f"{rows[-1]['median_ms'] / att['median_ms']:.0f}x", flush=True)
     return rows
 
 
@@ -89,7 +99,8 @@ def bench_training(args) -> list[dict]:
 
     from ipp_bench.policies.network import AttentionNet
     from ipp_bench.policies.sb3 import AttentionPolicy
-    from ipp_bench.policies.train import BCDataset, TrainArgs, _vec_env, collect_episodes, fit_bc, make_env, make_expert
+    from ipp_bench.policies.train import TrainArgs, _vec_env, make_env
+    from ipp_bench.policies.warmstart import BCDataset, collect_episodes, fit_bc, make_expert
 
     cfg = TrainArgs(n_envs=5, n_steps=128, n_epochs=args.n_epochs, batch_size=128)
     venv = _vec_env(cfg)
@@ -136,6 +147,11 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--decisions", type=int, default=300, help="decisions timed per setting")
     p.add_argument("--mcts-decisions", type=int, default=5, help="MCTS decisions timed (0: skip)")
+    p.add_argument("--mcts", nargs="+", default=["mcts:simulations=24"],
+                   help="MCTS specs timed (default: the leaderboard's mcts:simulations=24)")
+    p.add_argument("--checkpoint", default="", help="attention checkpoint to time (default: the shipped one)")
+    p.add_argument("--decision-threads", type=int, nargs="+", default=[1],
+                   help="torch threads for the decision times (default 1, the planner's default)")
     p.add_argument("--train-threads", type=int, nargs="+", default=[1, 2],
                    help="torch threads for the training figures (each measured; the first for the warm start)")
     p.add_argument("--n-epochs", type=int, default=4, help="PPO epochs in the throughput figure")

@@ -22,7 +22,7 @@ from ipp_bench.policies.network import AttentionNet, NetConfig
 
 FORMAT = "ipp_bench.attention/1"
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
-SHIPPED_CHECKPOINT = CHECKPOINT_DIR / "attention_grid15.pt"
+SHIPPED_CHECKPOINT = CHECKPOINT_DIR / "attention_v1.pt"  # v0: attention_grid15.pt (still shipped)
 
 
 class CheckpointError(ValueError):
@@ -65,8 +65,10 @@ def load_checkpoint(path: str | Path | None = None, device: str | torch.device =
             f"`python -m ipp_bench.policies.train --export {path}` (writes {path.with_suffix('.pt')})")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # noqa: BLE001 - any unreadable file gets the same message
-        raise CheckpointError(f"checkpoint {path} could not be read ({err}); expected {expected}") from None
+    except Exception:  # noqa: BLE001 - any unreadable file gets the same message
+        # Never torch's advice to retry with weights_only=False: a file that needs it is not ours.
+        raise CheckpointError(f"checkpoint {path} is not an ipp-bench checkpoint (torch cannot read it as "
+                              f"plain tensors and dicts); expected {expected}") from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
         raise CheckpointError(f"checkpoint {path} has format {found!r}; expected {expected}")
@@ -78,16 +80,20 @@ def load_checkpoint(path: str | Path | None = None, device: str | torch.device =
     try:
         net.load_state_dict(payload["state_dict"], strict=True)
     except (KeyError, RuntimeError) as err:
-        raise CheckpointError(
-            f"checkpoint {path} does not fit AttentionNet({cfg}): {err}".strip()) from None
+        first = str(err).strip().splitlines()
+        why = " ".join(line.strip() for line in first[1:3]) if len(first) > 1 else (first[0] if first else "")
+        raise CheckpointError(f"checkpoint {path} does not fit AttentionNet({cfg}): {why}") from None
     net.to(device).eval()
     return net, dict(payload.get("meta") or {})
 
 
-def check_feature_dims(cfg: NetConfig, node_features: int, pe_dim: int, source: str = "checkpoint") -> None:
-    """Raise CheckpointError (a ValueError) if a network of ``cfg`` cannot read observations with
-    ``node_features`` node features and ``pe_dim`` positional-encoding columns."""
-    if (node_features, pe_dim) != (cfg.node_dim, cfg.pe_dim):
-        raise CheckpointError(
-            f"{source} expects {cfg.node_dim} node features and pe_dim={cfg.pe_dim}; the environment "
-            f"gives {node_features} node features and pe_dim={pe_dim} (set GraphConfig.pe_dim={cfg.pe_dim})")
+def check_feature_dims(cfg: NetConfig, node_dim: int, pe_dim: int, source: str = "checkpoint") -> None:
+    """Raise CheckpointError (a ValueError; one line naming both values) if a network of ``cfg``
+    cannot read observations with ``node_dim`` node features and ``pe_dim`` encoding columns."""
+    if (node_dim, pe_dim) != (cfg.node_dim, cfg.pe_dim):
+        what = [f"{name}={mine} in the checkpoint but {name}={theirs} in the environment"
+                for name, mine, theirs in (("node_dim", cfg.node_dim, node_dim), ("pe_dim", cfg.pe_dim, pe_dim))
+                if mine != theirs]
+        hint = f" (set GraphConfig.pe_dim={cfg.pe_dim}, e.g. gym.make(task, pe_dim={cfg.pe_dim}))" \
+            if cfg.pe_dim != pe_dim else ""
+        raise CheckpointError(f"{source} does not fit this task: " + "; ".join(what) + hint)

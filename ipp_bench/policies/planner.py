@@ -1,6 +1,6 @@
 """``attention``: the trained attention policy of the paper as a roadmap planner.
 
-Loads the checkpoint shipped in the package (``ipp_bench/policies/checkpoints/attention_grid15.pt``)
+Loads the checkpoint shipped in the package (``ipp_bench/policies/checkpoints/attention_v1.pt``)
 or ``checkpoint=PATH`` (an ``export.pt`` of an ``ipp-bench train`` run), and picks the neighbour
 with the highest probability (``sample=true``: draws from the policy instead, seeded per episode).
 Needs torch (``pip install "ipp-bench[train]"``); the planner registry imports it lazily. It
@@ -93,6 +93,15 @@ class AttentionPlanner(GraphPlanner):
         """The planner deciding with ``net`` on ``device``, torch's threads left alone."""
         return cls(AttentionConfig(sample=sample, device=str(device), threads=0), net=net)
 
+    def reset(self, view: RobotView, seed: int) -> None:
+        """Refuses (CheckpointError, one line) a checkpoint whose inputs differ from the task's."""
+        from .checkpoint import check_feature_dims
+
+        # pe_dim is the task's; the node features are checked on the first observation (_check).
+        check_feature_dims(self.net.cfg, self.net.cfg.node_dim, view.config.graph.pe_dim,
+                           f"attention checkpoint {self._source}")
+        super().reset(view, seed)
+
     def _check(self, obs: dict[str, np.ndarray]) -> None:
         shape = (obs["node_features"].shape[-1], obs["pos_encoding"].shape[-1])
         if shape == self._checked_shape:
@@ -107,6 +116,10 @@ class AttentionPlanner(GraphPlanner):
         return softmax(self._logits(obs))
 
     def _logits(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        if self.net.cfg.node_dim == 6 and np.shape(obs["node_features"])[-1] == 5:
+            from .features import add_gain_feature  # trained with the look-gain feature
+
+            obs = add_gain_feature(obs, self.view)
         self._check(obs)
         torch = self._torch
         mask = np.asarray(obs["action_mask"]).astype(bool).reshape(-1)

@@ -1,15 +1,26 @@
 """``ipp-bench train``: train the attention policy (behaviour-cloning warm start + MaskablePPO).
 
+A thin script in the cleanrl manner: :class:`TrainArgs` is the one list of options (the command
+line is generated from its fields), the warm start lives in :mod:`ipp_bench.policies.warmstart`,
+and stable-baselines3 does the rest through its own pieces.
+
 Two phases, both resumable, in one run folder:
 
-1. **Warm start** (``--warm-start greedy``, optional): DAgger-style behaviour cloning from a planner
-   of the registry. Round 0 flies the expert; later rounds fly the student (the expert's action
-   taken with probability 0.5^round) and label every visited state with the expert's choice. The
-   network is fitted to the labels (cross-entropy) and its value head to the discounted returns
-   observed, so that PPO starts from a policy near the expert and a critic that knows its scale.
+1. **Warm start** (``--warm-start greedy``, optional): DAgger-style behaviour cloning from a
+   roadmap planner of the registry (:mod:`~ipp_bench.policies.warmstart`).
 2. **PPO** (sb3-contrib ``MaskablePPO`` with :class:`~ipp_bench.policies.sb3.AttentionPolicy`)
    for ``--total-steps`` environment steps, validating the deterministic policy every
-   ``--eval-every`` steps on fixed episodes of the training task (never the evaluation tasks).
+   ``--eval-every`` steps on held-out episodes of the training task (seeds 10,000,000 onwards;
+   never an evaluation task's seeds).
+
+SB3's callbacks do what they were written for: ``CheckpointCallback`` keeps the numbered
+checkpoints and ``learn(progress_bar=True)`` (``ProgressBarCallback``) draws the bar. One small
+callback of ours runs after every PPO update, where SB3 has none: it writes ``latest.zip`` (so
+that an interrupt loses at most the rollout being collected) and validates when due. SB3's
+``EvalCallback`` is not used: it fires mid-rollout and scores episode returns, while validation
+here scores the ROI uncertainty reduction at the report times of the shared episode loop
+(:func:`ipp_bench.planners.episode.fly_episode` with the ``attention`` planner, exactly as the
+leaderboard plays it).
 
 Defaults are the paper's PPO settings (Adam, lr 1e-5, 8 epochs per batch, batch 128, gamma 0.99,
 one-step TD advantages = GAE lambda 0, 5 parallel instances) and no warm start; see
@@ -20,156 +31,147 @@ Run folder (``--out DIR``, default ``runs/<task>__attention__<seed>__<time>``)::
 
     config.json      the arguments and the exact command
     state.json       phase bookkeeping (warm start done, steps trained)
+    train.log        what was printed
     progress.csv     SB3 training log (appended across resumes), validation included
-    tb/              TensorBoard logs
-    warmstart/       bc.pt (warm-start weights), bc_log.csv
-    checkpoints/     latest.zip (after every PPO update), step_<n>.zip, best.zip (validation)
+    tb/              TensorBoard logs (if tensorboard is installed)
+    warmstart/       bc.pt (warm-start weights), bc_log.csv, progress.json (rounds done)
+    checkpoints/     latest.zip (after every PPO update), step_<n>_steps.zip, best.zip (validation)
     export.pt        best validated policy in the shipped checkpoint format (+ export.json)
     last.pt          final policy in the same format
 
-``--resume`` continues a run from ``latest.zip``: a checkpoint is written after every PPO update,
-so an interrupted run (Ctrl-C, SIGTERM) loses at most the rollout being collected, which was not
-trained on yet; the step counter continues from the checkpoint.
-
-Episodes (validation, warm-start collection) go through the suite's one episode loop,
-:func:`ipp_bench.planners.episode.fly_episode`, and validation decides through the leaderboard's
-:class:`~ipp_bench.policies.planner.AttentionPlanner`. Why this module is over 400 lines: it holds
-the whole training script (arguments, warm start, PPO callbacks, run folder); issue 11 rewrites
-and splits it.
+``--resume`` continues a run: the warm start from its last completed round, PPO from
+``latest.zip``; the step counter continues from the checkpoint.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
+import os
 import shlex
 import signal
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
-from ipp_bench._threads import available_cpus
 from ipp_bench.envs.registry import parse_overrides
-from ipp_bench.planners.base import GraphPlanner, softmax
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from ipp_bench.policies.network import MASKED_LOGIT, AttentionNet, NetConfig
+from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, gain_feature_wrapper
+from ipp_bench.policies.network import AttentionNet, NetConfig
+from ipp_bench.policies.warmstart import check_expert, warm_start
 
-VAL_SEED0 = 10_000_000  # validation episodes use seeds VAL_SEED0 + i (training uses --seed onwards)
+VAL_SEED0 = 10_000_000  # validation episodes use seeds VAL_SEED0 + i of the validation task
+
+
+def opt(default: Any, help: str, group: str = "", **argparse_kwargs: Any) -> Any:  # noqa: A002
+    """A field of :class:`TrainArgs` with its command-line help (``%(default)s`` is filled in)."""
+    meta = {"help": help, "group": group, **argparse_kwargs}
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+PPO, NET, WARM, VAL = "PPO (paper values as defaults)", "network", "warm start (behaviour cloning / DAgger)", \
+    "validation and checkpoints"
 
 
 @dataclass
 class TrainArgs:
-    """Every option of ``ipp-bench train`` with its default (the paper's values where it has one)."""
+    """Every option of ``ipp-bench train`` (the paper's values where it has one).
 
-    task: str = "ipp_bench/Grid15-v0"
-    env: list[str] = field(default_factory=list)  # KEY=VALUE overrides of the task config (budget_s=200)
-    total_steps: int = 200_000  # PPO environment steps (the warm start comes on top)
-    n_envs: int = 5  # paper: five parallel instances
-    n_steps: int = 128  # steps per env per PPO rollout: 5 x 128 = 640 samples = 5 batches
-    batch_size: int = 128  # paper
-    n_epochs: int = 8  # paper: eight PPO iterations per batch
-    learning_rate: float = 1e-5  # paper
-    gamma: float = 0.99  # paper
-    gae_lambda: float = 0.0  # paper: one-step TD error
-    clip_range: float = 0.2
-    ent_coef: float = 0.0
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
-    target_kl: float = 0.0  # 0 = off
-    embed_dim: int = 128  # CAtNIPP / paper
-    n_heads: int = 4
-    ff_dim: int = 512
-    warm_start: str = "none"  # planner to imitate first ("greedy"), or "none"
-    bc_episodes: int = 100  # expert episodes of round 0
-    bc_rounds: int = 2  # DAgger rounds after round 0
-    bc_round_episodes: int = 50  # student episodes per DAgger round
-    bc_epochs: int = 8  # passes over the data after each round
-    bc_lr: float = 3e-4
-    bc_temperature: float = 0.1  # soft targets from the expert's scores; 0 = one-hot on its action
-    val_task: str = ""  # task of the validation episodes; "" = the training task
-    eval_every: int = 20_000  # [steps] validation period (also after the warm start)
-    eval_episodes: int = 16
-    checkpoint_every: int = 20_000  # [steps] keep checkpoints/step_<n>.zip
-    seed: int = 0
-    device: str = "auto"  # auto | cpu | cuda
-    threads: int = 0  # torch threads; 0 = half the CPUs available to this process, at least 1
-    out: str = ""  # run folder
-    progress: bool = True
+    The command line is generated from these fields: ``--total-steps`` for ``total_steps``, the
+    help from the metadata; a ``bool`` field that defaults to True becomes ``--no-<name>``.
+    """
+
+    task: str = opt("ipp_bench/Grid15-v0", "gymnasium task id to train on")
+    env: list[str] = opt([], "override a field of the task config for training, e.g. --env budget_s=200 "
+                             "(repeatable; values are read as JSON where they parse)", metavar="KEY=VALUE")
+    total_steps: int = opt(200_000, "PPO environment steps (the warm start comes on top)")
+    n_envs: int = opt(5, "parallel environments (paper: five instances)")
+    device: str = opt("auto", "torch device: auto, cpu, cuda or cuda:<n>")
+    seed: int = opt(0, "seed of the network, the environments and the warm start")
+    threads: int = opt(0, "torch intra-op threads; 0 = half the CPUs available, at least 1 (1 on 2 cores)")
+    out: str = opt("", "run folder; '' = runs/<task>__attention__<seed>__<time>")
+    n_steps: int = opt(128, "steps per env per rollout", PPO)
+    batch_size: int = opt(128, "minibatch size (paper)", PPO)
+    n_epochs: int = opt(8, "epochs per rollout (paper: eight)", PPO)
+    learning_rate: float = opt(1e-5, "Adam learning rate (paper)", PPO)
+    gamma: float = opt(0.99, "discount (paper)", PPO)
+    gae_lambda: float = opt(0.0, "GAE lambda (0 = the paper's one-step TD advantage)", PPO)
+    clip_range: float = opt(0.2, "PPO clip", PPO)
+    ent_coef: float = opt(0.0, "entropy bonus", PPO)
+    vf_coef: float = opt(0.5, "value loss weight", PPO)
+    max_grad_norm: float = opt(0.5, "gradient clip", PPO)
+    target_kl: float = opt(0.0, "early-stop an update past this KL (0 = off)", PPO)
+    embed_dim: int = opt(128, "d, the embedding size (CAtNIPP / paper)", NET)
+    n_heads: int = opt(4, "attention heads", NET)
+    ff_dim: int = opt(512, "feed-forward width", NET)
+    gain_feature: bool = opt(False, "add the look-gain node feature (ipp_bench.policies.features): the predicted "
+                                    "ROI trace reduction of one look from every node", NET)
+    init: str = opt("", "start from the weights of this exported checkpoint (.pt, e.g. an earlier run's "
+                        "warmstart/bc.pt): the warm start fine-tunes them, or PPO starts from them", NET)
+    warm_start: str = opt("none", "roadmap planner to imitate before PPO, e.g. greedy; 'none' to skip", WARM)
+    bc_episodes: int = opt(100, "expert episodes of round 0", WARM)
+    bc_rounds: int = opt(2, "DAgger rounds after round 0", WARM)
+    bc_round_episodes: int = opt(50, "student episodes per DAgger round", WARM)
+    bc_epochs: int = opt(8, "passes over the data after each round", WARM)
+    bc_lr: float = opt(3e-4, "warm-start learning rate", WARM)
+    bc_temperature: float = opt(0.1, "soft targets p ~ exp((score/best - 1)/T) from the expert's scores; "
+                                     "0 = one-hot on its action", WARM)
+    val_task: str = opt("", "task of the validation episodes (seeds 10,000,000 onwards, held out of "
+                            "training); '' = the training task", VAL)
+    eval_every: int = opt(20_000, "validation period [steps] (also after the warm start)", VAL)
+    eval_episodes: int = opt(16, "validation episodes", VAL)
+    checkpoint_every: int = opt(20_000, "keep a numbered checkpoint every this many steps", VAL)
+    progress: bool = opt(True, "draw a progress bar (SB3's ProgressBarCallback)", VAL)
 
     def net_config(self) -> NetConfig:
-        return NetConfig(embed_dim=self.embed_dim, n_heads=self.n_heads, ff_dim=self.ff_dim)
+        return NetConfig(node_dim=GAIN_NODE_DIM if self.gain_feature else BASE_NODE_DIM,
+                         embed_dim=self.embed_dim, n_heads=self.n_heads, ff_dim=self.ff_dim)
 
 
 # Options that may change when resuming a run; all others must match the saved config.
 _RESUMABLE = {"total_steps", "device", "threads", "progress", "out"}
+_NOT_IN_COMMAND = {"out", "device", "threads"}  # where and on what a run went, not what it is
 
 
 def add_train_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Add the options of ``ipp-bench train`` to ``parser`` (defaults documented in the help)."""
-    d = TrainArgs()
-    a = parser.add_argument
-    a("--task", default=None, help=f"gymnasium task id to train on (default {d.task})")
-    a("--env", metavar="KEY=VALUE", action="append", default=None,
-      help="override a field of the task config for training, e.g. --env budget_s=200 (repeatable; "
-           "values are read as JSON where they parse)")
-    a("--total-steps", type=int, default=None, help=f"PPO environment steps (default {d.total_steps})")
-    a("--n-envs", type=int, default=None, help=f"parallel environments (default {d.n_envs}, the paper's 5)")
-    a("--device", default=None, help="torch device: auto, cpu or cuda (default auto)")
-    a("--out", default=None, help="run folder (default runs/<task>__attention__<seed>__<time>)")
-    a("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
-    a("--seed", type=int, default=None, help=f"seed (default {d.seed})")
-    a("--threads", type=int, default=None,
-      help="torch intra-op threads (default: half the CPUs available, at least 1; 1 on a 2-core machine)")
-    g = parser.add_argument_group("PPO (paper values as defaults)")
-    g.add_argument("--learning-rate", type=float, default=None, help=f"Adam learning rate (default {d.learning_rate})")
-    g.add_argument("--n-epochs", type=int, default=None, help=f"epochs per rollout (default {d.n_epochs})")
-    g.add_argument("--batch-size", type=int, default=None, help=f"minibatch size (default {d.batch_size})")
-    g.add_argument("--n-steps", type=int, default=None, help=f"steps per env per rollout (default {d.n_steps})")
-    g.add_argument("--gamma", type=float, default=None, help=f"discount (default {d.gamma})")
-    g.add_argument("--gae-lambda", type=float, default=None,
-                   help=f"GAE lambda (default {d.gae_lambda}: the paper's one-step TD advantage)")
-    g.add_argument("--clip-range", type=float, default=None, help=f"PPO clip (default {d.clip_range})")
-    g.add_argument("--ent-coef", type=float, default=None, help=f"entropy bonus (default {d.ent_coef})")
-    g.add_argument("--vf-coef", type=float, default=None, help=f"value loss weight (default {d.vf_coef})")
-    g.add_argument("--max-grad-norm", type=float, default=None, help=f"gradient clip (default {d.max_grad_norm})")
-    g.add_argument("--target-kl", type=float, default=None, help="early-stop an update past this KL (default off)")
-    n = parser.add_argument_group("network")
-    n.add_argument("--embed-dim", type=int, default=None, help=f"d (default {d.embed_dim})")
-    n.add_argument("--n-heads", type=int, default=None, help=f"attention heads (default {d.n_heads})")
-    n.add_argument("--ff-dim", type=int, default=None, help=f"feed-forward width (default {d.ff_dim})")
-    w = parser.add_argument_group("warm start (behaviour cloning / DAgger)")
-    w.add_argument("--warm-start", default=None,
-                   help="planner to imitate before PPO, e.g. greedy; 'none' to skip (default none)")
-    w.add_argument("--bc-episodes", type=int, default=None, help=f"expert episodes (default {d.bc_episodes})")
-    w.add_argument("--bc-rounds", type=int, default=None, help=f"DAgger rounds (default {d.bc_rounds})")
-    w.add_argument("--bc-round-episodes", type=int, default=None,
-                   help=f"student episodes per DAgger round (default {d.bc_round_episodes})")
-    w.add_argument("--bc-epochs", type=int, default=None, help=f"epochs after each round (default {d.bc_epochs})")
-    w.add_argument("--bc-lr", type=float, default=None, help=f"warm-start learning rate (default {d.bc_lr})")
-    w.add_argument("--bc-temperature", type=float, default=None,
-                   help="soft imitation targets p ~ exp((score/best - 1)/T) from the expert's scores; 0 = one-hot "
-                        f"(default {d.bc_temperature})")
-    v = parser.add_argument_group("validation and checkpoints")
-    v.add_argument("--val-task", default=None,
-                   help="task of the validation episodes (seeds 10,000,000 onwards, disjoint from the "
-                        "leaderboard's); default: the training task")
-    v.add_argument("--eval-every", type=int, default=None, help=f"validation period in steps (default {d.eval_every})")
-    v.add_argument("--eval-episodes", type=int, default=None, help=f"validation episodes (default {d.eval_episodes})")
-    v.add_argument("--checkpoint-every", type=int, default=None,
-                   help=f"keep a numbered checkpoint every this many steps (default {d.checkpoint_every})")
-    v.add_argument("--no-progress", dest="progress", action="store_false", default=None,
-                   help="no progress bar")
+    """Add the options of ``ipp-bench train`` to ``parser``, generated from :class:`TrainArgs`.
+
+    Every option defaults to None so that the options given explicitly can be told apart (a
+    resumed run may change only some of them).
+    """
+    groups: dict[str, Any] = {"": parser}
+    for f in fields(TrainArgs):
+        meta = dict(f.metadata)
+        group = meta.pop("group", "")
+        if group not in groups:
+            groups[group] = parser.add_argument_group(group)
+        default = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
+        flag = "--" + f.name.replace("_", "-")
+        kwargs: dict[str, Any] = {"default": None, "dest": f.name, **meta}
+        if f.type in ("bool", bool):  # --name when it defaults to False, --no-name when to True
+            if default:
+                flag = "--no-" + f.name.replace("_", "-")
+            kwargs.update(action="store_false" if default else "store_true",
+                          help=f"do not {meta['help']}" if default else meta["help"])
+        elif f.type in ("list[str]",):
+            kwargs.update(action="append", help=meta["help"])
+        else:
+            typ = {"int": int, "float": float, "str": str}[str(f.type)]
+            kwargs.update(type=typ, help=f"{meta['help']} (default {default!r})")
+        groups[group].add_argument(flag, **kwargs)
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     parser.add_argument("--export", metavar="ZIP", default=None,
-                        help="only convert an SB3 checkpoint (.zip) of a run to the shipped .pt format and exit")
+                        help="only convert an SB3 checkpoint (.zip) of a run to the shipped .pt format "
+                             "(written beside it) and exit")
     return parser
 
 
@@ -183,21 +185,22 @@ def command_line(cfg: TrainArgs) -> str:
     parts = ["ipp-bench", "train"]
     for f in fields(TrainArgs):
         val = getattr(cfg, f.name)
-        if f.name == "progress":
-            if not val:
-                parts.append("--no-progress")
+        if f.name in _NOT_IN_COMMAND:
             continue
-        if f.name in ("out", "device", "threads"):
-            continue
-        if f.name == "env":
+        flag = "--" + f.name.replace("_", "-")
+        if isinstance(val, bool):
+            if val != f.default:
+                parts.append(flag if val else "--no-" + f.name.replace("_", "-"))
+        elif isinstance(val, list):
             for item in val:
-                parts += ["--env", item]
-            continue
-        parts += [f"--{f.name.replace('_', '-')}", str(val)]
+                parts += [flag, str(item)]
+        else:
+            parts += [flag, str(val)]
     return shlex.join(parts)
 
 
 def _check(cfg: TrainArgs) -> None:
+    """Validate every option before anything is written (the run folder included)."""
     positive = ("total_steps", "n_envs", "n_steps", "batch_size", "n_epochs", "eval_episodes",
                 "checkpoint_every", "eval_every", "embed_dim", "n_heads", "ff_dim")
     for name in positive:
@@ -217,6 +220,13 @@ def _check(cfg: TrainArgs) -> None:
     if cfg.device.startswith("cuda") and not torch.cuda.is_available():
         raise ValueError(f"--device {cfg.device} asked for but torch sees no CUDA device; use --device cpu")
     cfg.net_config()  # validates the network sizes
+    if cfg.init:
+        init_net = load_init(cfg)
+        if init_net.cfg != cfg.net_config():
+            raise ValueError(f"--init {cfg.init}: its network is {init_net.cfg}, the options give "
+                             f"{cfg.net_config()} (match --embed-dim, --n-heads, --ff-dim, --gain-feature)")
+    if cfg.warm_start != "none":
+        check_expert(cfg.warm_start)
     import gymnasium as gym
 
     import ipp_bench.envs  # noqa: F401 - registers the tasks
@@ -232,10 +242,26 @@ def _check(cfg: TrainArgs) -> None:
         raise ValueError(f"--task {cfg.task} with --env {cfg.env}: {err}") from None
 
 
+def load_init(cfg: TrainArgs, device: str | torch.device = "cpu") -> AttentionNet:
+    """The network of ``--init`` (ValueError with the checkpoint's own message if unreadable)."""
+    try:
+        net, _ = load_checkpoint(cfg.init, device=device)
+    except CheckpointError as err:
+        raise ValueError(f"--init: {err}") from None
+    return net
+
+
 def _resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)
+
+
+def _available_cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return os.cpu_count() or 1
 
 
 def set_threads(n: int = 0) -> int:
@@ -246,7 +272,7 @@ def set_threads(n: int = 0) -> int:
     1.5 ms with one thread and 200 ms with two (OpenMP threads waiting on each other whenever one
     is descheduled). Half the CPUs leaves room for the environments and for other processes.
     """
-    n = n or max(1, available_cpus() // 2)
+    n = n or max(1, _available_cpus() // 2)
     torch.set_num_threads(n)
     return n
 
@@ -263,303 +289,40 @@ def make_env(task: str, **overrides: Any):
 
 
 def make_train_env(cfg: TrainArgs):
-    """The training task with the run's ``--env`` overrides."""
-    return make_env(cfg.task, **parse_overrides(cfg.env))
+    """The training task with the run's ``--env`` overrides (and the look-gain feature if asked for)."""
+    env = make_env(cfg.task, **parse_overrides(cfg.env))
+    return gain_feature_wrapper(env) if cfg.gain_feature else env
 
 
-def _validation(net: AttentionNet, cfg: TrainArgs, device: torch.device) -> dict[str, float]:
-    if cfg.val_task:
-        return evaluate_net(net, cfg.val_task, cfg.eval_episodes, device)
-    return evaluate_net(net, cfg.task, cfg.eval_episodes, device, overrides=parse_overrides(cfg.env))
-
-
-def make_expert(name: str) -> _PlannerExpert:
-    """``expert(obs) -> (action index, scores)`` from the planner registry (``greedy``, ``mcts``, ...)."""
-    try:
-        from ipp_bench.planners import make_planner
-    except ImportError as err:
-        raise ValueError(f"--warm-start {name}: the planner registry is not available ({err})") from None
-    planner = make_planner(name)
-    if getattr(planner, "kind", None) != "graph":
-        raise ValueError(f"--warm-start {name}: a roadmap planner (kind 'graph') is needed to label neighbours")
-    return _PlannerExpert(planner)
-
-
-class _PlannerExpert:
-    """A registry planner as ``expert(obs) -> (action, scores)``; the episode loop resets it."""
-
-    def __init__(self, planner: Any) -> None:
-        self.planner = planner
-
-    def __call__(self, obs: dict) -> tuple[int, np.ndarray | None]:
-        """The expert's action and, where the planner exposes them, its scores per neighbour."""
-        if hasattr(self.planner, "scores"):
-            scores = np.asarray(self.planner.scores(obs), dtype=np.float64)
-            return int(np.argmax(scores)), scores
-        return int(self.planner.act(obs)), None
-
-
-def soft_target(action: int, scores: np.ndarray | None, k: int, temperature: float) -> np.ndarray:
-    """Imitation target over the k neighbours.
-
-    With expert scores (e.g. greedy's predicted gain per second), neighbours scoring close to the
-    best share the probability: ``p ~ exp((s / s_max - 1) / temperature)`` over the valid ones, so
-    near-ties are not forced apart. Without scores (or ``temperature = 0``): one-hot on the action.
-    """
-    target = np.zeros(k, dtype=np.float32)
-    if scores is None or temperature <= 0:
-        target[action] = 1.0
-        return target
-    valid = np.isfinite(scores)
-    best = scores[action]
-    if best <= 0 or not valid.any():
-        target[action] = 1.0
-        return target
-    z = np.where(valid, (scores / best - 1.0) / temperature, -np.inf)
-    return softmax(z).astype(np.float32)
-
-
-def obs_batch(obs_list: list[dict], device: torch.device) -> dict[str, torch.Tensor]:
-    return {k: torch.as_tensor(np.stack([o[k] for o in obs_list])).to(device) for k in obs_list[0]}
-
-
-@torch.no_grad()
-def net_action(net: AttentionNet, obs: dict, device: torch.device, deterministic: bool = True,
-               rng: np.random.Generator | None = None) -> int:
-    logits, _ = net.forward_obs(obs_batch([obs], device))
-    logits = logits[0].cpu().numpy().astype(np.float64)
-    if deterministic:
-        return int(np.argmax(logits))
-    return int((rng or np.random.default_rng()).choice(logits.size, p=softmax(logits)))
-
-
-def evaluate_net(net: AttentionNet, task: str, episodes: int, device: torch.device,
-                 seed0: int = VAL_SEED0, overrides: dict[str, Any] | None = None) -> dict[str, float]:
-    """Deterministic (argmax) episodes of ``task`` on fixed seeds, through the episode loop and the
-    planner class the leaderboard uses (:class:`~ipp_bench.policies.planner.AttentionPlanner`).
-
-    Every second episode starts at the node nearest the default start of
-    :class:`~ipp_bench.config.MissionConfig` (above cell (2, 2) at 14 m) instead of the task's own
-    start rule, so that a policy which is good from random starts but, say, oscillates between
-    two nodes from the standard start does not pass validation.
+def evaluate_net(net: AttentionNet, task: str, episodes: int, seed0: int = VAL_SEED0,
+                 overrides: dict[str, Any] | None = None) -> dict[str, float]:
+    """Deterministic (argmax) episodes of ``task`` on seeds ``seed0 + i``, through the episode loop
+    and the planner class the leaderboard uses (:class:`~ipp_bench.policies.planner.AttentionPlanner`).
 
     Returns:
-        ``val/score`` (mean ROI uncertainty reduction over the report times within the budget, or
-        at the end of the budget if none is), ``val/unc_red_<t>s`` per report time, ``val/return``.
+        ``val/score`` (mean ROI uncertainty reduction over the report times within the budget),
+        ``val/unc_red_<t>s`` per report time.
     """
-    from ipp_bench.config import MissionConfig
-    from ipp_bench.mission import cell_to_xyz
     from ipp_bench.planners.episode import fly_episode
     from ipp_bench.policies.planner import AttentionPlanner
 
-    base = make_env(task, **(overrides or {})).unwrapped
-    times = base.config.mission.report_times_in_budget or (base.config.mission.budget_s,)
-    start = MissionConfig().start
-    std_node = base.roadmap.nearest_node(cell_to_xyz(base.config, *start)) if start is not None else None
-    planner = AttentionPlanner.from_net(net, device)
-    red, ret = [], []
+    env = make_env(task, **(overrides or {})).unwrapped
+    planner = AttentionPlanner.from_net(net, next(net.parameters()).device)
     was_training = net.training
     net.eval()
-    for i in range(episodes):
-        options = {"start_node": std_node} if (i % 2 and std_node is not None) else None
-        result = fly_episode(base, planner, seed0 + i, options=options)
-        red.append([base.mission.metrics_at(t)["uncertainty_reduction_pct"] for t in times])
-        ret.append(result.total_reward)
+    reports = [fly_episode(env, planner, seed0 + i).report for i in range(episodes)]
     net.train(was_training)
-    red_arr = np.asarray(red)
-    out = {"val/score": float(red_arr.mean()), "val/return": float(np.mean(ret))}
-    for j, t in enumerate(times):
-        out[f"val/unc_red_{int(t)}s"] = float(red_arr[:, j].mean())
+    red_arr = np.asarray([[r["uncertainty_reduction_pct"] for r in rep] for rep in reports])
+    out = {"val/score": float(red_arr.mean())}
+    for j, row in enumerate(reports[0]):
+        out[f"val/unc_red_{int(row['time_s'])}s"] = float(red_arr[:, j].mean())
     return out
 
 
-# ------------------------------------------------------------------------------------------------
-# Warm start: behaviour cloning with DAgger
-# ------------------------------------------------------------------------------------------------
-class BCDataset:
-    """States visited, expert labels and discounted returns (positional encodings stored once)."""
-
-    def __init__(self) -> None:
-        self.nf: list[np.ndarray] = []
-        self.small: list[np.ndarray] = []  # [current, neighbours (k), mask (k), budget]
-        self.pe_id: list[int] = []
-        self.action: list[int] = []
-        self.target: list[np.ndarray] = []
-        self.ret: list[float] = []
-        self.pes: list[np.ndarray] = []
-
-    def __len__(self) -> int:
-        return len(self.action)
-
-    def _pe_index(self, pe: np.ndarray) -> int:
-        for i, p in enumerate(self.pes):
-            if p.shape == pe.shape and np.array_equal(p, pe):
-                return i
-        self.pes.append(np.array(pe, dtype=np.float32))
-        return len(self.pes) - 1
-
-    def add_episode(self, obs_list: list[dict], actions: list[int], targets: list[np.ndarray], rewards: list[float],
-                    gamma: float) -> None:
-        g, rets = 0.0, []
-        for r in reversed(rewards):
-            g = r + gamma * g
-            rets.append(g)
-        rets.reverse()
-        for o, a, tg, rt in zip(obs_list, actions, targets, rets):
-            self.nf.append(o["node_features"].astype(np.float32))
-            self.small.append(np.concatenate([o["current_node"].astype(np.float32), o["neighbours"].astype(np.float32),
-                                              o["action_mask"].astype(np.float32), o["budget"].astype(np.float32)]))
-            self.pe_id.append(self._pe_index(o["pos_encoding"]))
-            self.action.append(int(a))
-            self.target.append(tg)
-            self.ret.append(float(rt))
-
-    def batches(self, batch_size: int, rng: np.random.Generator, device: torch.device):
-        order = rng.permutation(len(self))
-        k = (self.small[0].size - 2) // 2
-        pes = [torch.as_tensor(p) for p in self.pes]
-        for s in range(0, len(order), batch_size):
-            idx = order[s : s + batch_size]
-            small = torch.as_tensor(np.stack([self.small[i] for i in idx]))
-            obs = {
-                "node_features": torch.as_tensor(np.stack([self.nf[i] for i in idx])),
-                "pos_encoding": torch.stack([pes[self.pe_id[i]] for i in idx]),
-                "current_node": small[:, :1],
-                "neighbours": small[:, 1 : 1 + k],
-                "action_mask": small[:, 1 + k : 1 + 2 * k],
-                "budget": small[:, -1:],
-            }
-            obs = {key: t.to(device) for key, t in obs.items()}
-            yield obs, torch.as_tensor(np.stack([self.target[i] for i in idx])).to(device), \
-                torch.as_tensor(np.array([self.ret[i] for i in idx], dtype=np.float32)).to(device)
-
-
-def collect_episodes(env, expert, net: AttentionNet | None, episodes: int, beta: float, data: BCDataset,
-                     gamma: float, rng: np.random.Generator, seed0: int, device: torch.device,
-                     temperature: float = 0.0) -> dict[str, float]:
-    """Fly ``episodes`` episodes through the episode loop (:func:`~ipp_bench.planners.episode.fly_episode`);
-    at each state the expert's action is executed with probability ``beta`` (else the student's,
-    sampled); every state is labelled with the expert's action."""
-    from ipp_bench.planners.episode import fly_episode
-
-    red, steps = [], 0
-    for e in range(episodes):
-        dagger = _DaggerPlanner(expert, net, beta, rng, device, temperature)
-        rews: list[float] = []
-        result = fly_episode(env.unwrapped, dagger, seed0 + e, on_decision=lambda d: rews.append(d.reward))
-        data.add_episode(dagger.obs_list, dagger.expert_actions, dagger.targets, rews, gamma)
-        red.append(result.final["uncertainty_reduction_pct"])
-        steps += len(dagger.expert_actions)
-    return {"episodes": episodes, "steps": steps, "unc_red_final": float(np.mean(red)) if red else float("nan")}
-
-
-class _DaggerPlanner(GraphPlanner):
-    """DAgger's behaviour policy as a planner: labels every state with the expert's action and
-    executes it with probability ``beta``, else the student's (sampled)."""
-
-    name = "dagger"
-
-    def __init__(self, expert, net, beta: float, rng: np.random.Generator, device: torch.device,
-                 temperature: float) -> None:
-        super().__init__(None)
-        self.expert, self.net, self.beta, self.student_rng = expert, net, beta, rng
-        self.device, self.temperature = device, temperature
-        self.obs_list: list[dict] = []
-        self.expert_actions: list[int] = []
-        self.targets: list[np.ndarray] = []
-
-    def reset(self, view, seed: int) -> None:
-        super().reset(view, seed)
-        self.expert.planner.reset(view, seed)
-
-    def act(self, obs):
-        a_exp, scores = self.expert(obs)
-        self.targets.append(soft_target(a_exp, scores, len(obs["action_mask"]), self.temperature))
-        a = a_exp
-        if self.net is not None and self.student_rng.random() >= self.beta:
-            a = net_action(self.net, obs, self.device, deterministic=False, rng=self.student_rng)
-        self.obs_list.append(obs)
-        self.expert_actions.append(a_exp)
-        return a
-
-
-def fit_bc(net: AttentionNet, data: BCDataset, epochs: int, lr: float, batch_size: int, rng: np.random.Generator,
-           device: torch.device, vf_coef: float = 0.5, log: Callable[[dict], None] | None = None) -> None:
-    """Cross-entropy to the expert's targets + ``vf_coef`` x Huber loss of the value to the returns.
-
-    Logged: the losses, ``acc`` (argmax = the expert's best) and ``target_p`` (the target probability
-    of the student's argmax, 1 = as good as the expert's choice by the expert's own scores)."""
-    net.train()
-    opt = torch.optim.Adam(net.parameters(), lr=lr)
-    for epoch in range(epochs):
-        tot = {"loss_pi": 0.0, "loss_v": 0.0, "acc": 0.0, "target_p": 0.0, "n": 0}
-        for obs, target, ret in data.batches(batch_size, rng, device):
-            logits, value = net.forward_obs(obs)
-            logits = logits.clamp_min(MASKED_LOGIT)
-            loss_pi = -(target * torch.log_softmax(logits, -1)).sum(-1).mean()
-            loss_v = F.smooth_l1_loss(value, ret)
-            loss = loss_pi + vf_coef * loss_v
-            opt.zero_grad()
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-            opt.step()
-            n = target.shape[0]
-            tot["loss_pi"] += loss_pi.item() * n
-            tot["loss_v"] += loss_v.item() * n
-            choice = logits.argmax(-1, keepdim=True)
-            tot["acc"] += (choice[:, 0] == target.argmax(-1)).float().sum().item()
-            tot["target_p"] += (target.gather(1, choice) / target.max(-1, keepdim=True).values).sum().item()
-            tot["n"] += n
-        if log is not None:
-            n = max(tot["n"], 1)
-            log({"epoch": epoch, "loss_pi": tot["loss_pi"] / n, "loss_v": tot["loss_v"] / n, "acc": tot["acc"] / n,
-                 "target_p": tot["target_p"] / n})
-    net.eval()
-
-
-def warm_start(cfg: TrainArgs, run: Path, device: torch.device, say: Callable[[str], None]
-               ) -> tuple[AttentionNet, dict[str, float]]:
-    """Behaviour cloning (DAgger) from ``cfg.warm_start``; writes ``warmstart/bc.pt``."""
-    out = run / "warmstart"
-    out.mkdir(exist_ok=True)
-    env = make_train_env(cfg)
-    expert = make_expert(cfg.warm_start)
-    torch.manual_seed(cfg.seed)
-    net = AttentionNet(cfg.net_config()).to(device)
-    data = BCDataset()
-    rng = np.random.default_rng(cfg.seed)
-    log_path = out / "bc_log.csv"
-    rows: list[dict] = []
-
-    def log(row: dict) -> None:
-        rows.append({"round": rnd, "samples": len(data), "wall_s": round(time.time() - t0, 1), **row})
-        with log_path.open("w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=sorted({k for r in rows for k in r}))
-            w.writeheader()
-            w.writerows(rows)
-
-    t0 = time.time()
-    seed = cfg.seed * 1_000_003
-    for rnd in range(cfg.bc_rounds + 1):
-        n_ep = cfg.bc_episodes if rnd == 0 else cfg.bc_round_episodes
-        beta = 0.5 ** rnd
-        stats = collect_episodes(env, expert, None if rnd == 0 else net, n_ep, beta, data, cfg.gamma, rng,
-                                 seed, device, temperature=cfg.bc_temperature)
-        seed += n_ep
-        say(f"warm start round {rnd}: {stats['episodes']} episodes (beta {beta:.2f}), {len(data)} samples, "
-            f"final ROI uncertainty reduction of the flown paths {stats['unc_red_final']:.1f}%")
-        log({"phase": "collect", **stats})
-        fit_bc(net, data, cfg.bc_epochs, cfg.bc_lr, cfg.batch_size, rng, device,
-               log=lambda r: (log({"phase": "fit", **r}),
-                              say(f"  epoch {r['epoch']}: loss_pi {r['loss_pi']:.3f} loss_v {r['loss_v']:.3f} "
-                                  f"acc {r['acc']:.3f} target_p {r['target_p']:.3f}")))
-    val = _validation(net, cfg, device)
-    log({"phase": "validate", **val})
-    say(f"warm start done in {time.time() - t0:.0f} s; validation: {_fmt(val)}")
-    save_checkpoint(net, out / "bc.pt", meta={"task": cfg.task, "phase": "warm start",
-                                               "expert": cfg.warm_start, "samples": len(data),
-                                               "wall_s": time.time() - t0, **val})
-    return net, val
+def _validation(net: AttentionNet, cfg: TrainArgs) -> dict[str, float]:
+    if cfg.val_task:
+        return evaluate_net(net, cfg.val_task, cfg.eval_episodes)
+    return evaluate_net(net, cfg.task, cfg.eval_episodes, overrides=parse_overrides(cfg.env))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -591,65 +354,44 @@ def _logger(run: Path):
     return Logger(str(run), formats)
 
 
-def _make_callback(cfg: TrainArgs, run: Path, device: torch.device, state: dict, say: Callable[[str], None]):
+def _after_update_callback(cfg: TrainArgs, run: Path, state: dict, say: Callable[[str], None]):
+    """``latest.zip`` after every PPO update, validation when due, throughput in the log."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    class TrainCallback(BaseCallback):
-        """Checkpoint after every update, validation, progress bar, throughput."""
-
-        def __init__(self) -> None:
-            super().__init__()
-            self.bar = None
-            self.t_last = time.time()
-            self.steps_last = 0
-
+    class AfterUpdate(BaseCallback):
         def _on_training_start(self) -> None:
-            self.steps_last = self.num_timesteps
-            self.t_last = time.time()
-            if cfg.progress:
-                from tqdm.auto import tqdm
-
-                tty = sys.stderr.isatty()
-                self.bar = tqdm(total=cfg.total_steps, initial=self.num_timesteps, unit="step",
-                                dynamic_ncols=True, mininterval=0.5 if tty else 30.0, desc="PPO")
+            self.t_last, self.steps_last = time.time(), self.num_timesteps
 
         def _on_step(self) -> bool:
-            if self.bar is not None:
-                self.bar.update(self.training_env.num_envs)
             return True
 
         def _on_rollout_start(self) -> None:
-            # Called after each update (and once at the start): the model holds every trained step.
+            # Called after each update (and once at the start): the model holds every step counted.
             self.after_update()
 
         def after_update(self) -> None:
-            """Checkpoint (and validate when due) a model whose weights include every step counted."""
             n = self.model.num_timesteps
             if n == state.get("ppo_steps", 0) and (run / "checkpoints" / "latest.zip").is_file():
                 return
             now = time.time()
             state["ppo_wall_s"] = state.get("ppo_wall_s", 0.0) + (now - self.t_last)
-            fps = (n - self.steps_last) / max(now - self.t_last, 1e-9)
-            self.logger.record("time/steps_per_s", fps)
+            self.logger.record("time/steps_per_s", (n - self.steps_last) / max(now - self.t_last, 1e-9))
             self.t_last, self.steps_last = now, n
-            ck = run / "checkpoints"
-            _atomic_save(self.model, ck / "latest.zip")
-            if n // cfg.checkpoint_every > state.get("ppo_steps", 0) // cfg.checkpoint_every:
-                _atomic_save(self.model, ck / f"step_{n:09d}.zip")
+            _atomic_save(self.model, run / "checkpoints" / "latest.zip")
             if n // cfg.eval_every > state.get("ppo_steps", 0) // cfg.eval_every or n >= cfg.total_steps:
                 self.validate(n)
             state["ppo_steps"] = n
             _write_state(run, state)
+            self.t_last = time.time()  # validation time is not training time
 
         def validate(self, n: int) -> None:
             net = self.model.policy.attention_net()
-            val = _validation(net, cfg, device)
+            val = _validation(net, cfg)
             self.model.policy.set_training_mode(False)
             for key, v in val.items():
                 self.logger.record(key, v)
-            best = state.get("best_score", -math.inf)
             msg = f"step {n}: validation {_fmt(val)}"
-            if val["val/score"] > best:
+            if val["val/score"] > state.get("best_score", -math.inf):
                 state["best_score"], state["best_step"] = val["val/score"], n
                 _atomic_save(self.model, run / "checkpoints" / "best.zip")
                 save_checkpoint(net, run / "export.pt", meta=_meta(cfg, state, n, val))
@@ -657,11 +399,7 @@ def _make_callback(cfg: TrainArgs, run: Path, device: torch.device, state: dict,
             say(msg)
             self.logger.dump(n)
 
-        def _on_training_end(self) -> None:
-            if self.bar is not None:
-                self.bar.close()
-
-    return TrainCallback()
+    return AfterUpdate()
 
 
 def _atomic_save(model, path: Path) -> None:
@@ -671,11 +409,38 @@ def _atomic_save(model, path: Path) -> None:
     tmp.replace(path)
 
 
+def versions() -> dict[str, str]:
+    """Versions of what a checkpoint was trained with."""
+    import platform
+
+    import stable_baselines3
+    import sb3_contrib
+
+    import ipp_bench
+
+    return {"torch": str(torch.__version__), "stable_baselines3": str(stable_baselines3.__version__),
+            "sb3_contrib": str(sb3_contrib.__version__), "numpy": str(np.__version__), "python": platform.python_version(),
+            "ipp_bench": getattr(ipp_bench, "__version__", "")}
+
+
 def _meta(cfg: TrainArgs, state: dict, steps: int, val: dict) -> dict:
     return {"task": cfg.task, "ppo_steps": steps, "warm_start": cfg.warm_start,
             "command": command_line(cfg), "train_config": asdict(cfg) | {"out": ""},
+            "seeds": {"seed": cfg.seed, "warm_start_episode_seeds": _warm_start_seeds(cfg),
+                      "ppo_episode_seeds": "drawn by the environments' generators, seeded by --seed (SB3 set_random_seed)",
+                      "validation_seeds": f"{VAL_SEED0}..{VAL_SEED0 + cfg.eval_episodes - 1} of "
+                                          f"{cfg.val_task or cfg.task}"},
+            "versions": versions(), "device": cfg.device, "threads": cfg.threads,
             "ppo_wall_s": round(state.get("ppo_wall_s", 0.0), 1),
             "warm_start_wall_s": round(state.get("bc_wall_s", 0.0), 1), **val}
+
+
+def _warm_start_seeds(cfg: TrainArgs) -> str:
+    if cfg.warm_start == "none":
+        return ""
+    n = cfg.bc_episodes + cfg.bc_rounds * cfg.bc_round_episodes
+    s0 = cfg.seed * 1_000_003
+    return f"{s0}..{s0 + n - 1} of {cfg.task}"
 
 
 def _write_state(run: Path, state: dict) -> None:
@@ -688,19 +453,17 @@ def _vec_env(cfg: TrainArgs):
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    def thunk(i: int):
-        def make():
-            return Monitor(make_train_env(cfg))
-        return make
+    def make():
+        return Monitor(make_train_env(cfg))
 
-    # Envs step in ~1 ms; the network dominates, so they run in this process (no subprocesses).
-    venv = DummyVecEnv([thunk(i) for i in range(cfg.n_envs)])
-    return venv
+    # Envs step in ~1-2 ms; the network dominates, so they run in this process (no subprocesses).
+    return DummyVecEnv([make] * cfg.n_envs)
 
 
 def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: dict, bc_path: Path | None,
         say: Callable[[str], None]) -> None:
     from sb3_contrib import MaskablePPO
+    from stable_baselines3.common.callbacks import CheckpointCallback
 
     from ipp_bench.policies.sb3 import AttentionPolicy
 
@@ -717,19 +480,23 @@ def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: dict, bc_path: P
             clip_range=cfg.clip_range, ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef,
             max_grad_norm=cfg.max_grad_norm, target_kl=cfg.target_kl or None,
             policy_kwargs={"net_config": cfg.net_config().to_dict()}, seed=cfg.seed, device=device, verbose=0)
-        if bc_path is not None:
-            net, _ = load_checkpoint(bc_path, device=device)
+        start = bc_path if bc_path is not None else (Path(cfg.init) if cfg.init else None)
+        if start is not None:
+            net, _ = load_checkpoint(start, device=device)
             model.policy.attention_net().load_state_dict(net.state_dict())
-            say(f"PPO starts from the warm-start weights {bc_path}")
+            say(f"PPO starts from the weights {start}")
         state["ppo_steps"] = 0
     model.set_logger(_logger(run))
     remaining = cfg.total_steps - model.num_timesteps
     if remaining <= 0:
         say(f"PPO already has {model.num_timesteps} >= --total-steps {cfg.total_steps} steps")
     else:
-        callback = _make_callback(cfg, run, device, state, say)
-        model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=False)
-        callback.after_update()  # the last update is followed by no rollout
+        after = _after_update_callback(cfg, run, state, say)
+        numbered = CheckpointCallback(save_freq=max(cfg.checkpoint_every // cfg.n_envs, 1),
+                                      save_path=str(run / "checkpoints"), name_prefix="step")
+        model.learn(total_timesteps=remaining, callback=[after, numbered], reset_num_timesteps=False,
+                    progress_bar=cfg.progress)
+        after.after_update()  # the last update is followed by no rollout
     net = model.policy.attention_net()
     save_checkpoint(net, run / "last.pt", meta=_meta(cfg, state, model.num_timesteps, {}))
     if not (run / "export.pt").is_file():
@@ -741,13 +508,28 @@ def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: dict, bc_path: P
 # Entry points
 # ------------------------------------------------------------------------------------------------
 def export_zip(zip_path: str | Path, out: str | Path | None = None) -> Path:
-    """Convert an SB3 MaskablePPO archive of AttentionPolicy to the shipped ``.pt`` format."""
-    from sb3_contrib import MaskablePPO
+    """Convert an SB3 MaskablePPO archive of AttentionPolicy to the shipped ``.pt`` format.
+
+    Raises:
+        CheckpointError: the file is missing or is not an SB3 archive of an AttentionPolicy.
+    """
+    import zipfile
 
     zip_path = Path(zip_path)
-    model = MaskablePPO.load(zip_path, device="cpu")
+    expected = "an SB3 archive (.zip) of a MaskablePPO AttentionPolicy, e.g. <run>/checkpoints/best.zip"
+    if not zip_path.is_file():
+        raise CheckpointError(f"--export {zip_path}: no such file; expected {expected}")
+    if not zipfile.is_zipfile(zip_path):
+        raise CheckpointError(f"--export {zip_path}: not a zip archive; expected {expected}")
+    from sb3_contrib import MaskablePPO
+
+    try:
+        model = MaskablePPO.load(zip_path, device="cpu")
+    except Exception as err:  # noqa: BLE001 - any unreadable archive gets the same message
+        raise CheckpointError(f"--export {zip_path}: could not be read as a MaskablePPO archive "
+                              f"({type(err).__name__}); expected {expected}") from None
     if not hasattr(model.policy, "attention_net"):
-        raise CheckpointError(f"{zip_path} holds a {type(model.policy).__name__}, not an AttentionPolicy")
+        raise CheckpointError(f"--export {zip_path}: holds a {type(model.policy).__name__}, not an AttentionPolicy")
     return save_checkpoint(model.policy.attention_net(), out or zip_path.with_suffix(".pt"),
                            meta={"source": str(zip_path), "ppo_steps": int(model.num_timesteps)})
 
@@ -783,7 +565,11 @@ def _resolve_config(ns: argparse.Namespace) -> tuple[TrainArgs, Path]:
 def run_train(args: argparse.Namespace) -> int:
     """Run ``ipp-bench train`` with parsed arguments; returns the exit code."""
     if getattr(args, "export", None):
-        path = export_zip(args.export)
+        try:
+            path = export_zip(args.export)
+        except CheckpointError as err:
+            print(f"ipp-bench train: error: {err}", file=sys.stderr)
+            return 2
         print(f"wrote {path}")
         return 0
     try:
@@ -821,9 +607,12 @@ def run_train(args: argparse.Namespace) -> int:
         if cfg.warm_start != "none":
             bc_path = run / "warmstart" / "bc.pt"
             if not state.get("bc_done"):
-                t0 = time.time()
-                net, val = warm_start(cfg, run, device, say)
-                state.update(bc_done=True, bc_wall_s=time.time() - t0)
+                init = load_init(cfg, device) if cfg.init else None
+                net, val = warm_start(cfg, run, device, say, make_env=lambda: make_train_env(cfg),
+                                      validate=lambda n: _validation(n, cfg), net_config=cfg.net_config(),
+                                      init=init)
+                progress = json.loads((run / "warmstart" / "progress.json").read_text())
+                state.update(bc_done=True, bc_wall_s=progress["wall_s"])
                 # The warm-start policy is the first candidate for export.pt; PPO must beat it.
                 state.update(best_score=val["val/score"], best_step=0)
                 save_checkpoint(net, run / "export.pt", meta=_meta(cfg, state, 0, val))

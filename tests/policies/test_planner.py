@@ -85,25 +85,37 @@ def test_incompatible_checkpoints_are_refused(tmp_path, small_ckpt):
         load_checkpoint(junk)
     text = tmp_path / "text.pt"
     text.write_text("not a checkpoint")
-    with pytest.raises(CheckpointError, match="could not be read"):
+    with pytest.raises(CheckpointError, match="is not an ipp-bench checkpoint") as err:
         load_checkpoint(text)
+    assert "weights_only" not in str(err.value)
+    pickled = tmp_path / "pickled.pt"
+    torch.save({"format": "ipp_bench.attention/1", "x": tmp_path}, pickled)  # needs weights_only=False
+    with pytest.raises(CheckpointError, match="is not an ipp-bench checkpoint") as err:
+        load_checkpoint(pickled)
+    assert "weights_only" not in str(err.value) and "\n" not in str(err.value)
     payload = torch.load(small_ckpt, weights_only=True)
     payload["net_config"]["embed_dim"] = 64  # weights no longer fit
     bad = tmp_path / "bad.pt"
     torch.save(payload, bad)
-    with pytest.raises(CheckpointError, match="does not fit"):
+    with pytest.raises(CheckpointError, match="does not fit") as err:
         load_checkpoint(bad)
+    assert "\n" not in str(err.value)
     with pytest.raises(CheckpointError, match="SB3 model archive"):
         load_checkpoint(tmp_path / "model.zip") if (tmp_path / "model.zip").write_text("x") else None
 
 
-def test_observation_mismatch_is_reported(small_ckpt):
+def test_pe_dim_mismatch_is_refused_at_reset_in_one_line(small_ckpt):
     planner = make_planner(f"attention:checkpoint={small_ckpt}")
     env = gym.make("ipp_bench/Grid15-v0", pe_dim=16)
-    obs, _ = env.reset(seed=0)
-    planner.reset(RobotView(env.unwrapped), 0)
-    with pytest.raises(CheckpointError, match="pe_dim=32"):
-        planner.act(obs)
+    env.reset(seed=0)
+    with pytest.raises(CheckpointError, match="pe_dim=32 in the checkpoint but pe_dim=16 in the environment") as err:
+        planner.reset(RobotView(env.unwrapped), 0)
+    assert "\n" not in str(err.value)
+
+
+def test_same_weights_on_grid15_and_grid30(small_ckpt):
+    for task in ("ipp_bench/Grid15Eval-v1", "ipp_bench/Grid30Eval-v1"):
+        assert len(_fly(make_planner(f"attention:checkpoint={small_ckpt}"), task=task, steps=5)) == 5
 
 
 def test_shipped_checkpoint_loads_and_acts():

@@ -9,7 +9,8 @@ import pytest
 pytest.importorskip("sb3_contrib")
 
 from ipp_bench.policies.checkpoint import load_checkpoint
-from ipp_bench.policies.train import TrainArgs, add_train_arguments, command_line, soft_target
+from ipp_bench.policies.train import TrainArgs, add_train_arguments, command_line
+from ipp_bench.policies.warmstart import soft_target
 
 TINY = ["--task", "ipp_bench/Grid15-v0", "--n-envs", "1", "--n-steps", "32", "--batch-size", "32",
         "--n-epochs", "1", "--embed-dim", "16", "--n-heads", "2", "--ff-dim", "32",
@@ -32,6 +33,7 @@ def test_tiny_training_run_then_resume(tmp_path):
     state = json.loads((run / "state.json").read_text())
     assert state["bc_done"] and state["ppo_steps"] == 64
     for name in ("config.json", "progress.csv", "warmstart/bc.pt", "checkpoints/latest.zip",
+                 "checkpoints/step_64_steps.zip",
                  "export.pt", "export.json", "last.pt"):
         assert (run / name).is_file(), name
     assert any((run / "tb").iterdir())
@@ -62,7 +64,8 @@ def test_command_line_round_trips_through_the_parser():
     import argparse
     import shlex
 
-    cfg = TrainArgs(total_steps=1234, warm_start="greedy", learning_rate=3e-5, progress=False)
+    cfg = TrainArgs(total_steps=1234, warm_start="greedy", learning_rate=3e-5, progress=False, gain_feature=True)
+    assert "--gain-feature" in command_line(cfg) and "--no-progress" in command_line(cfg)
     argv = shlex.split(command_line(cfg))[2:]
     ns = add_train_arguments(argparse.ArgumentParser()).parse_args(argv)
     parsed = {k: v for k, v in vars(ns).items() if k in TrainArgs.__dataclass_fields__ and v is not None}
@@ -78,3 +81,81 @@ def test_soft_targets():
     assert t[3] == 0 and t.argmax() == 0 and t[1] > t[2] > 0 and abs(t.sum() - 1) < 1e-6
     assert soft_target(2, None, 4, 0.1).tolist() == [0, 0, 1, 0]
     assert soft_target(1, s, 4, 0.0).tolist() == [0, 1, 0, 0]
+
+
+def test_options_are_generated_from_the_dataclass():
+    import argparse
+
+    parser = add_train_arguments(argparse.ArgumentParser())
+    flags = {a.dest for a in parser._actions}
+    assert {f for f in TrainArgs.__dataclass_fields__} <= flags
+    assert "(default 1e-05)" in parser.format_help()  # the help shows the dataclass default
+
+
+def test_warm_start_with_a_non_graph_planner_is_refused_before_the_run_folder(tmp_path):
+    for bad, why in (("coverage", "roadmap planner"), ("nope", "unknown planner")):
+        run = tmp_path / bad
+        proc = _train(*TINY, "--warm-start", bad, "--total-steps", "32", "--out", str(run), check=False)
+        assert proc.returncode == 2 and why in proc.stderr and "--warm-start" in proc.stderr
+        assert not run.exists()
+
+
+def test_export_refuses_missing_and_wrong_files(tmp_path):
+    proc = _train("--export", str(tmp_path / "missing.zip"), check=False)
+    assert proc.returncode == 2 and "no such file" in proc.stderr and "Traceback" not in proc.stderr
+    junk = tmp_path / "junk.zip"
+    junk.write_text("not a zip")
+    proc = _train("--export", str(junk), check=False)
+    assert proc.returncode == 2 and "not a zip archive" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_interrupted_warm_start_resumes_to_the_same_weights(tmp_path):
+    """Ctrl-C (SIGTERM) after a DAgger round: --resume continues with the next round, same result."""
+    import signal
+    import time
+
+    import torch
+
+    ws = ["--bc-rounds", "2", "--bc-round-episodes", "2", "--total-steps", "32", "--eval-every", "10000"]
+    ref = tmp_path / "ref"
+    _train(*TINY, *ws, "--out", str(ref))
+    run = tmp_path / "run"
+    cmd = [sys.executable, "-m", "ipp_bench.cli", "train", *TINY, *ws, "--out", str(run)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    progress = run / "warmstart" / "progress.json"
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None:
+        if progress.is_file() and json.loads(progress.read_text())["rounds_done"] >= 1:
+            proc.send_signal(signal.SIGTERM)
+            break
+        time.sleep(0.05)
+    out, _ = proc.communicate(timeout=300)
+    interrupted = proc.returncode == 130
+    if interrupted:
+        assert not json.loads((run / "state.json").read_text()).get("bc_done")
+    resumed = _train("--out", str(run), "--resume", "--no-progress")
+    if interrupted and json.loads(progress.read_text())["rounds_done"] < 3:
+        assert "resuming the warm start after round" in resumed.stdout
+    rows = (run / "warmstart" / "bc_log.csv").read_text().splitlines()
+    ref_rows = (ref / "warmstart" / "bc_log.csv").read_text().splitlines()
+    assert len(rows) == len(ref_rows)  # no round logged twice, none lost
+    a = torch.load(run / "warmstart" / "bc.pt", weights_only=True)["state_dict"]
+    b = torch.load(ref / "warmstart" / "bc.pt", weights_only=True)["state_dict"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_init_checkpoint_must_match_the_network_options(tmp_path):
+    import torch
+
+    from ipp_bench.policies.checkpoint import save_checkpoint
+    from ipp_bench.policies.network import AttentionNet, NetConfig
+
+    torch.manual_seed(0)
+    init = tmp_path / "init.pt"
+    save_checkpoint(AttentionNet(NetConfig(embed_dim=16, n_heads=2, ff_dim=32)), init)
+    run = tmp_path / "run"
+    proc = _train(*TINY, "--gain-feature", "--init", str(init), "--out", str(run), check=False)
+    assert proc.returncode == 2 and "--init" in proc.stderr and "node_dim=5" in proc.stderr and not run.exists()
+    proc = _train(*TINY, "--init", str(tmp_path / "missing.pt"), "--out", str(run), check=False)
+    assert proc.returncode == 2 and "not found" in proc.stderr and not run.exists()
+    _train(*TINY, "--init", str(init), "--total-steps", "32", "--out", str(run))

@@ -101,3 +101,9 @@ def test_ray_backend_without_ray_names_the_extra(monkeypatch, capsys, tmp_path):
         check_executor_args("ray")
     assert main(["leaderboard", "--planners", "random", "--backend", "ray", "--out", str(tmp_path / "o")]) == 2
     assert 'pip install "ipp-bench[ray]"' in capsys.readouterr().err
+
+
+def test_evaluate_without_a_report_time_in_the_budget_prints_the_end_of_the_mission(capsys):
+    assert main(["evaluate", "--task", "Grid15Eval-v0", "--planner", "greedy", "--env", "budget_s=12"]) == 0
+    out = capsys.readouterr().out
+    assert "no report time lies within the budget" in out and out.count("%") == 2

@@ -103,7 +103,7 @@ def bench_physics(steps: int) -> None:
 
 def bench_missions(task: str, planners: list[str], seeds: int) -> None:
     from ipp_bench.planners.episode import fly_episode
-    from ipp_bench.sim.demo import make_sim_env
+    from ipp_bench.sim.video import make_sim_env
 
     print(f"\n## Full missions on {task} (200 s budget)")
     print(f"{'planner':>10} {'seed':>4} | {'reset s':>7} | {'mission s':>9} | {'wall s':>6} | {'planner s':>9} | "

@@ -37,7 +37,7 @@ EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
 _DELEGATED = {
     "train": ("ipp_bench.policies.train", "add_train_arguments", "run_train", "train",
               "train the attention policy (behaviour cloning warm start + MaskablePPO)"),
-    "demo": ("ipp_bench.sim.demo", "add_demo_arguments", "run_demo", "sim",
+    "demo": ("ipp_bench.eval.demo", "add_demo_arguments", "run_demo", "sim",
              "fly a planner in the MuJoCo deployment and render it"),
 }
 

@@ -87,7 +87,7 @@ def test_leaderboard_imports_neither_torch_nor_mujoco(tmp_path):
 
 
 @pytest.mark.parametrize("command, module, extra", [
-    ("train", "ipp_bench.policies.train", "train"), ("demo", "ipp_bench.sim.demo", "sim")])
+    ("train", "ipp_bench.policies.train", "train"), ("demo", "ipp_bench.eval.demo", "sim")])
 def test_missing_subcommand_module_names_the_extra(command, module, extra, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, module, None)  # import now raises ImportError, as without the extra
     assert main([command, "--help"]) == 2

@@ -38,7 +38,7 @@ class LookGain:
     """Per-node look-gain feature of one roadmap and camera (built once, then cheap per call)."""
 
     def __init__(self, positions: np.ndarray, sensor: Any, n_cells: int) -> None:
-        rows, cols, w, ind_rows, noise, node_of = [], [], [], [], [], []
+        rows, cols, w, noise, node_of = [], [], [], [], []
         j = 0
         for i, p in enumerate(positions):
             obs = sensor.observe(p)

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..planners.base import GraphPlanner, softmax
+from ..planners.base import GraphPlanner, RobotView, softmax
 
 
 @dataclass(frozen=True)

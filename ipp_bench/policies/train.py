@@ -41,6 +41,12 @@ Run folder (``--out DIR``, default ``runs/<task>__attention__<seed>__<time>``)::
 
 ``--resume`` continues a run: the warm start from its last completed round, PPO from
 ``latest.zip``; the step counter continues from the checkpoint.
+
+Why this module is long (about 650 lines): it is the whole ``ipp-bench train`` command in one
+place, cleanrl-style: the argument dataclass from which the options are generated, the checks
+that run before a run folder exists, the run folder's bookkeeping (config, state, resume, export)
+and the PPO phase. The parts that stand on their own live beside it: the warm start
+(``warmstart.py``), the look-gain feature (``features.py``), the SB3 policy (``sb3.py``).
 """
 
 from __future__ import annotations
@@ -48,7 +54,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import shlex
 import signal
 import sys
@@ -61,6 +66,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ipp_bench._threads import available_cpus
 from ipp_bench.envs.registry import parse_overrides
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, gain_feature_wrapper
@@ -257,13 +263,6 @@ def _resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def _available_cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return os.cpu_count() or 1
-
-
 def set_threads(n: int = 0) -> int:
     """Torch intra-op threads: ``n``, or half the CPUs available to this process (at least 1).
 
@@ -272,7 +271,7 @@ def set_threads(n: int = 0) -> int:
     1.5 ms with one thread and 200 ms with two (OpenMP threads waiting on each other whenever one
     is descheduled). Half the CPUs leaves room for the environments and for other processes.
     """
-    n = n or max(1, _available_cpus() // 2)
+    n = n or max(1, available_cpus() // 2)
     torch.set_num_threads(n)
     return n
 

@@ -14,10 +14,11 @@ Modules (imports flow downwards):
   ``vision_v0``: the v0 per-pixel numpy pipeline.
 - ``world``: all of the above for one grid; ``mission``: :class:`MuJoCoMission` (its clock is the
   affordability oracle); ``env``: the gymnasium tasks ``ipp_bench/MuJoCoWeed15-v0`` / ``-v1``;
-  ``dmenv``: a ``dm_env`` view; ``calibrate``: the camera's noise model; ``demo``: ``ipp-bench demo``.
+  ``dmenv``: a ``dm_env`` view; ``calibrate``: the camera's noise model; ``video``: the demo video
+  of an episode (``ipp-bench demo`` itself, which drives planners, is :mod:`ipp_bench.eval.demo`).
 
 Needs ``pip install "ipp-bench[sim]"`` and a system EGL or OSMesa (see ``gl``). Every module
 takes mujoco from ``ipp_bench.sim.gl``, so the backend is chosen whichever module is imported
-first; this package file imports nothing, so that ``ipp_bench.sim.demo`` (the CLI's argument
-parser) loads without MuJoCo installed.
+first; this package file imports nothing, so that ``ipp_bench.eval.demo`` (the CLI's argument
+parser, which imports ``ipp_bench.sim.video``) loads without MuJoCo installed.
 """

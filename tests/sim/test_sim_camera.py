@@ -228,7 +228,7 @@ def test_backend_is_chosen_before_mujoco_is_imported():
     import sys
 
     env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
-    code = ("import sys, os, ipp_bench.sim.demo; assert 'mujoco' not in sys.modules; "
+    code = ("import sys, os, ipp_bench.eval.demo; assert 'mujoco' not in sys.modules; "
             "import ipp_bench.sim.scene; print(os.environ['MUJOCO_GL'])")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() in ("egl", "osmesa")

@@ -10,7 +10,8 @@ iio = pytest.importorskip("imageio.v3")
 pytest.importorskip("imageio_ffmpeg")
 pytest.importorskip("matplotlib")
 
-from ipp_bench.sim.demo import add_demo_arguments, expected_frames, run_demo  # noqa: E402
+from ipp_bench.eval.demo import add_demo_arguments, run_demo  # noqa: E402
+from ipp_bench.sim.video import expected_frames  # noqa: E402
 
 SHORT = ["--planner", "random", "--seed", "1", "--budget", "4", "--size", "320x192", "--fps", "5",
          "--speedup", "1", "--hold", "0.4", "--no-progress"]
@@ -70,7 +71,7 @@ def test_bad_arguments_exit_2(tmp_path, bad, capsys):
 @pytest.mark.parametrize("bad", [["--crf", "52"], ["--crf", "-1"], ["--compare", "nope"],
                                  ["--compare", "coverage", "--compare-out", "plot.jpg"]])
 def test_bad_crf_and_compare_are_refused_before_flying(tmp_path, bad, capsys, monkeypatch):
-    import ipp_bench.sim.demo as demo
+    import ipp_bench.eval.demo as demo
 
     flown = []
     monkeypatch.setattr(demo, "record", lambda *a, **k: flown.append(1))  # nothing may fly
@@ -80,7 +81,7 @@ def test_bad_crf_and_compare_are_refused_before_flying(tmp_path, bad, capsys, mo
 
 
 def test_unwritable_output_is_refused_before_flying(tmp_path, capsys, monkeypatch):
-    import ipp_bench.sim.demo as demo
+    import ipp_bench.eval.demo as demo
 
     flown = []
     monkeypatch.setattr(demo, "record", lambda *a, **k: flown.append(1))

@@ -26,7 +26,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ipp_bench.planners.base import GraphPlanner
+from ipp_bench.planners.episode import fly_episode
 from ipp_bench.policies.checkpoint import load_checkpoint, save_checkpoint
+from ipp_bench.policies.features import add_gain_feature
 from ipp_bench.policies.network import MASKED_LOGIT, AttentionNet, NetConfig
 
 
@@ -36,7 +39,7 @@ def check_expert(name: str) -> None:
 
 
 def make_expert(name: str) -> _PlannerExpert:
-    """``expert(env, obs) -> action index`` from the planner registry (``greedy``, ``mcts``, ...)."""
+    """``expert(obs) -> (action, scores)`` from the planner registry (``greedy``, ``mcts``, ...)."""
     try:
         from ipp_bench.planners import make_planner
     except ImportError as err:
@@ -52,22 +55,50 @@ def make_expert(name: str) -> _PlannerExpert:
 
 
 class _PlannerExpert:
-    """A registry planner as ``expert(env, obs) -> action``, reset at every episode."""
+    """A registry planner as ``expert(obs) -> (action, scores)``; reset with the episode's view."""
 
     def __init__(self, planner: Any) -> None:
         self.planner = planner
 
-    def reset(self, env, obs: dict, seed: int) -> None:
-        from ipp_bench.planners.base import RobotView
-
-        self.planner.reset(RobotView(env.unwrapped), seed)
-
-    def __call__(self, env, obs: dict) -> tuple[int, np.ndarray | None]:
+    def __call__(self, obs: dict) -> tuple[int, np.ndarray | None]:
         """The expert's action and, where the planner exposes them, its scores per neighbour."""
         if hasattr(self.planner, "scores"):
             scores = np.asarray(self.planner.scores(obs), dtype=np.float64)
             return int(np.argmax(scores)), scores
         return int(self.planner.act(obs)), None
+
+
+class _DaggerPlanner(GraphPlanner):
+    """DAgger's behaviour policy as a planner, so that its episodes go through the one episode loop
+    (:func:`ipp_bench.planners.episode.fly_episode`): every state is labelled with the expert's
+    action, which is executed with probability ``beta`` (else the student's, sampled)."""
+
+    name = "dagger"
+
+    def __init__(self, expert: _PlannerExpert, net: AttentionNet | None, beta: float, rng: np.random.Generator,
+                 device: torch.device, temperature: float, gain_feature: bool) -> None:
+        super().__init__(None)
+        self.expert, self.net, self.beta, self.student_rng = expert, net, beta, rng
+        self.device, self.temperature, self.gain_feature = device, temperature, gain_feature
+        self.obs_list: list[dict] = []
+        self.actions: list[int] = []
+        self.targets: list[np.ndarray] = []
+
+    def reset(self, view: Any, seed: int) -> None:
+        super().reset(view, seed)
+        self.expert.planner.reset(view, seed)
+
+    def act(self, obs: dict) -> int:
+        if self.gain_feature:  # the observation the student is trained on
+            obs = add_gain_feature(obs, self.view)
+        a_exp, scores = self.expert(obs)
+        self.targets.append(soft_target(a_exp, scores, len(obs["action_mask"]), self.temperature))
+        a = a_exp
+        if self.net is not None and self.student_rng.random() >= self.beta:
+            a = net_action(self.net, obs, self.device, deterministic=False, rng=self.student_rng)
+        self.obs_list.append(obs)
+        self.actions.append(a_exp)
+        return a
 
 
 def soft_target(action: int, scores: np.ndarray | None, k: int, temperature: float) -> np.ndarray:
@@ -170,27 +201,19 @@ class BCDataset:
 def collect_episodes(env, expert, net: AttentionNet | None, episodes: int, beta: float, data: BCDataset,
                      gamma: float, rng: np.random.Generator, seed0: int, device: torch.device,
                      temperature: float = 0.0) -> dict[str, float]:
-    """Fly ``episodes`` episodes; at each state the expert's action is executed with probability
-    ``beta`` (else the student's, sampled); every state is labelled with the expert's action."""
+    """Fly ``episodes`` episodes through the episode loop; at each state the expert's action is
+    executed with probability ``beta`` (else the student's, sampled); every state is labelled with
+    the expert's action. ``env`` is the training env (the look-gain wrapper adds that feature)."""
+    base = env.unwrapped
+    gain = env.observation_space["node_features"].shape[-1] > base.observation_space["node_features"].shape[-1]
     red, steps = [], 0
     for e in range(episodes):
-        obs, _ = env.reset(seed=seed0 + e)
-        expert.reset(env, obs, seed0 + e)
-        obs_list, acts, targets, rews, done = [], [], [], [], False
-        while not done:
-            a_exp, scores = expert(env, obs)
-            targets.append(soft_target(a_exp, scores, len(obs["action_mask"]), temperature))
-            a = a_exp
-            if net is not None and rng.random() >= beta:
-                a = net_action(net, obs, device, deterministic=False, rng=rng)
-            obs_list.append(obs)
-            acts.append(a_exp)
-            obs, r, term, trunc, _ = env.step(a)
-            rews.append(float(r))
-            done = term or trunc
-        data.add_episode(obs_list, acts, targets, rews, gamma)
-        red.append(env.unwrapped.mission.metrics()["uncertainty_reduction_pct"])
-        steps += len(acts)
+        planner = _DaggerPlanner(expert, net, beta, rng, device, temperature, gain)
+        rewards: list[float] = []
+        result = fly_episode(base, planner, seed0 + e, on_decision=lambda d: rewards.append(float(d.reward)))
+        data.add_episode(planner.obs_list, planner.actions, planner.targets, rewards, gamma)
+        red.append(result.final["uncertainty_reduction_pct"])
+        steps += len(planner.actions)
     return {"episodes": episodes, "steps": steps, "unc_red_final": float(np.mean(red)) if red else float("nan")}
 
 

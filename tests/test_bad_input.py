@@ -242,6 +242,25 @@ def test_a_replaced_checkpoint_is_refused_like_any_other_change(capsys, tmp_path
     assert rc == 2 and "planner_fingerprints" in err and "checkpoint_sha256" in err
 
 
+def test_a_folder_from_before_checkpoint_hashes_does_not_adopt_todays_checkpoint(capsys, tmp_path):
+    """Rows of a checkpoint planner in a folder whose run.json has no planner fingerprints were made by
+    an unknown network: the rerun refuses them instead of labelling them with the current hash."""
+    pytest.importorskip("torch")
+    out = tmp_path / "lb"
+    argv = ["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random", "attention", "--episodes", "1",
+            "--backend", "serial", "--no-progress", "--out", str(out), *TINY]
+    assert _cli(argv, capsys)[0] == 0
+    meta = json.loads((out / "run.json").read_text())
+    del meta["fingerprint"]["planner_fingerprints"]  # as written before fingerprints existed
+    (out / "run.json").write_text(json.dumps(meta))
+    rc, _, err = _cli(argv, capsys)
+    assert rc == 2 and "predates planner fingerprints" in err and "attention" in err
+    lines = (out / "results.csv").read_text().splitlines()
+    (out / "results.csv").write_text("\n".join(ln for ln in lines if ",attention," not in ln) + "\n")
+    assert _cli(argv, capsys)[0] == 0  # without those rows it upgrades and reruns them
+    assert "checkpoint_sha256" in (out / "run.json").read_text()
+
+
 def test_a_no_op_quick_does_not_relabel_the_report(capsys, tmp_path):
     out = tmp_path / "lb"
     assert _cli(_lb(out), capsys)[0] == 0

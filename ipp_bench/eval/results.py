@@ -212,6 +212,8 @@ class ResultsStore:
                 f"{self.run_json} is unreadable ({err}); pass a new --out DIR (or delete {self.dir})") from None
         stored_episodes = stored.pop("episodes", None) or stored_meta.get("episodes") or len(stored_meta.get("seeds", []))
         added = [k for k in ADDED_FINGERPRINT_KEYS if k not in stored]
+        if "planner_fingerprints" in added:
+            self._refuse_unfingerprinted_rows(fingerprint.get("planner_fingerprints") or {})
         for k in added:
             stored[k] = fingerprint[k]
         differing = [k for k in sorted(set(stored) | set(fingerprint)) if stored.get(k) != fingerprint.get(k)]
@@ -236,6 +238,20 @@ class ResultsStore:
             meta["quick"] = bool(stored_meta.get("quick", self.plan.quick))  # the label stays the folder's
             meta["command"] = self.command or stored_meta.get("command")
             self._meta = meta
+
+    def _refuse_unfingerprinted_rows(self, fingerprints: dict[str, dict[str, str]]) -> None:
+        """A folder from before planner fingerprints were recorded may hold rows of a planner whose
+        decisions depend on more than its spec (a checkpoint): which network made them is unknown,
+        so they cannot be kept under today's hash."""
+        if not fingerprints or not self.csv_path.exists():
+            return
+        with self.csv_path.open(newline="") as fh:
+            held = sorted({row.get("planner") for row in csv.DictReader(fh)} & set(fingerprints))
+        if held:
+            raise ResultsMismatchError(
+                f"{self.dir} predates planner fingerprints and holds rows of {', '.join(held)}, whose "
+                f"network (checkpoint) is not recorded: delete those rows from {self.csv_path.name} to rerun "
+                f"them with the current checkpoint, or pass a new --out DIR")
 
     def _load(self) -> None:
         """Read finished episodes; note torn lines and incomplete episodes (dropped at begin())."""

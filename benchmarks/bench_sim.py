@@ -37,18 +37,7 @@ from ipp_bench.sensor import Sensor  # noqa: E402
 from ipp_bench.sim.controller import ContinuousLeg  # noqa: E402
 from ipp_bench.sim.gl import mujoco  # noqa: E402
 from ipp_bench.sim.world import SimConfig, WeedWorld  # noqa: E402
-
-
-def per_frame(fn, n: int, repeat: int = 3) -> float:
-    """Median over ``repeat`` runs of the mean time of ``n`` calls [s]."""
-    fn(0)  # warm-up (GL context, caches)
-    runs = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        for i in range(n):
-            fn(i)
-        runs.append((time.perf_counter() - t0) / n)
-    return float(np.median(runs))
+from timing import per_frame  # noqa: E402  (benchmarks/timing.py)
 
 
 def bench_camera(frames: int) -> None:

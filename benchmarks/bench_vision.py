@@ -26,7 +26,6 @@ import argparse
 import dataclasses
 import os
 import platform
-import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -42,17 +41,7 @@ from ipp_bench.sim.render import SceneRenderer  # noqa: E402
 from ipp_bench.sim.vision_v0 import GroundProjector as V0Projector  # noqa: E402
 from ipp_bench.sim.vision_v0 import HSVThreshold as V0Threshold  # noqa: E402
 from ipp_bench.sim.world import SimConfig, WeedWorld  # noqa: E402
-
-
-def per_frame(fn, n: int, repeat: int = 3) -> float:
-    fn(0)
-    runs = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        for i in range(n):
-            fn(i)
-        runs.append((time.perf_counter() - t0) / n)
-    return float(np.median(runs))
+from timing import per_frame  # noqa: E402  (benchmarks/timing.py)
 
 
 def fmt(t: float) -> str:

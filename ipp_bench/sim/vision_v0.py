@@ -59,19 +59,6 @@ class HSVThreshold:
         return ok
 
 
-def rgb_to_hsv(rgb: np.ndarray) -> np.ndarray:
-    """Reference conversion of uint8 RGB to HSV (hue in degrees, s and v in [0, 1])."""
-    x = rgb.astype(np.float64) / 255.0
-    r, g, b = x[..., 0], x[..., 1], x[..., 2]
-    mx, mn = x.max(axis=-1), x.min(axis=-1)
-    c = mx - mn
-    safe = np.where(c > 0, c, 1.0)
-    h = np.where(mx == r, ((g - b) / safe) % 6.0, np.where(mx == g, (b - r) / safe + 2.0, (r - g) / safe + 4.0))
-    h = np.where(c > 0, 60.0 * h, 0.0)
-    s = np.where(mx > 0, c / np.where(mx > 0, mx, 1.0), 0.0)
-    return np.stack([h, s, mx], axis=-1)
-
-
 class GroundProjector:
     """Projects camera pixels to grid cells on the ground plane z = 0.
 

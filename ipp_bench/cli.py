@@ -119,9 +119,10 @@ def cmd_tasks(args: argparse.Namespace) -> int:
     from .envs import TASKS
 
     width = max(len(t) for t in TASKS) if TASKS else 0
+    tag_width = max((len(", ".join(s.tags)) for s in TASKS.values()), default=1)
     for task_id, spec in TASKS.items():
         mission, grid = spec.config.mission, spec.config.grid
-        print(f"{task_id:<{width}}  tags: {', '.join(spec.tags) or '-':<10}  "
+        print(f"{task_id:<{width}}  tags: {', '.join(spec.tags) or '-':<{tag_width}}  "
               f"{grid.rows}x{grid.cols} cells, {mission.field} fields, budget {mission.budget_s:g} s")
     return 0
 

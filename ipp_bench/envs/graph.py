@@ -151,13 +151,14 @@ class GraphIPPEnv(gym.Env):
             node = self.roadmap.nearest_node(cell_to_xyz(self.config, *start))
         self.current_node = node
         self.mission = self._make_mission(truth, np.random.default_rng(noise_seed), self.roadmap.positions[node])
-        if not self.action_masks().any():
+        mask = self.action_masks()
+        if not mask.any():
             nbrs = self.roadmap.positions[self.roadmap.neighbours[node]]
             cheapest = float(self.mission.leg_durations(self.mission.position, nbrs).min())
             raise ValueError(
                 f"budget_s = {self.config.mission.budget_s} is too small: no move from the start node {node} fits "
                 f"(the cheapest takes {cheapest:.2f} s); raise budget_s")
-        return self._observation(), self._info(0.0, 0.0)
+        return self._observation(mask), self._info(0.0, 0.0)
 
     def action_masks(self) -> np.ndarray:
         """(k,) bool: neighbours whose leg the mission's remaining budget can pay for."""
@@ -178,8 +179,8 @@ class GraphIPPEnv(gym.Env):
         self.current_node = target
         after = M.trace_roi(mission.belief.variance, roi)
         reward = M.info_gain_reward(before, after)
-        terminated = not bool(self.action_masks().any())
-        return self._observation(), reward, terminated, False, self._info(reward, after)
+        next_mask = self.action_masks()
+        return self._observation(next_mask), reward, not bool(next_mask.any()), False, self._info(reward, after)
 
     def render(self):
         if self.render_mode is None:
@@ -213,14 +214,17 @@ class GraphIPPEnv(gym.Env):
         feats[:, 4] = self._footprint @ np.sqrt(belief.variance)
         return feats
 
-    def _observation(self) -> dict[str, np.ndarray]:
+    def _observation(self, mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The observation of the current state; ``mask``: :meth:`action_masks`, when already computed."""
         mission = self.mission
+        if mask is None:
+            mask = self.action_masks()
         return {
             "node_features": self.node_features(),
             "pos_encoding": self.roadmap.pos_encoding.copy(),
             "current_node": np.array([self.current_node], dtype=np.int64),
             "neighbours": self.roadmap.neighbours[self.current_node].copy(),
-            "action_mask": self.action_masks().astype(np.int8),
+            "action_mask": mask.astype(np.int8),
             "budget": np.array([mission.remaining_s / mission.budget_s], dtype=np.float32),
         }
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,34 +17,46 @@ class GreedyConfig:
     """No settings: score = (Tr_ROI(P) - Tr_ROI(P+)) / travel time, belief ROI."""
 
 
+_LEGS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def leg_batch(view, node: int) -> LegBatch:
+    """The read-outs of the legs from ``node`` to each of its neighbours, as one batch.
+
+    They depend only on the roadmap, the camera and the measurement spacing, so they are built once
+    per roadmap (the planner's episodes and the attention policy's feature share them).
+    """
+    rm = view.roadmap
+    key = (id(view.sensor), view.config.mission.measurement_spacing)
+    per_map = _LEGS.get(rm)
+    if per_map is None or per_map[0] != key:
+        per_map = _LEGS[rm] = (key, {})
+    batch = per_map[1].get(node)
+    if batch is None:
+        legs = []
+        for target in rm.neighbours[node]:
+            obs = view.leg_observations(rm.positions[node], rm.positions[target])
+            legs.append(stack(obs) if obs else None)
+        batch = per_map[1][node] = LegBatch(legs)
+    return batch
+
+
+def greedy_scores(view, node: int) -> np.ndarray:
+    """(k,) predicted ROI trace reduction per second of flight of the leg to each neighbour of ``node``
+    (from the view's position), unmasked: greedy's score."""
+    gains = trace_reductions(view.belief.cov, leg_batch(view, node), view.belief_roi())
+    return gains / view.neighbour_durations(node, view.position)
+
+
 class GreedyPlanner(GraphPlanner):
     """One-step look-ahead on the roadmap with the belief covariance only (no truth, no stepping)."""
 
     name = "greedy"
     Config = GreedyConfig
 
-    def reset(self, view, seed):
-        super().reset(view, seed)
-        self._batches: dict[int, LegBatch] = {}
-
-    def _batch(self, node: int) -> LegBatch:
-        """The measurements of the legs to every neighbour of ``node`` (cached per episode)."""
-        batch = self._batches.get(node)
-        if batch is None:
-            rm = self.view.roadmap
-            legs = []
-            for target in rm.neighbours[node]:
-                obs = self.view.leg_observations(rm.positions[node], rm.positions[target])
-                legs.append(stack(obs) if obs else None)
-            batch = self._batches[node] = LegBatch(legs)
-        return batch
-
     def scores(self, obs) -> np.ndarray:
         """Predicted ROI trace reduction per second for each neighbour (-inf where masked)."""
-        view = self.view
-        node = int(obs["current_node"][0])
-        gains = trace_reductions(view.belief.cov, self._batch(node), view.belief_roi())
-        scores = gains / view.neighbour_durations(node, view.position)
+        scores = greedy_scores(self.view, int(obs["current_node"][0]))
         return np.where(obs["action_mask"].astype(bool), scores, -np.inf)
 
     def act(self, obs):

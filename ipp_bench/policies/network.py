@@ -23,6 +23,11 @@ Architecture:
   neighbours gives one logit per neighbour, ``10 tanh(q.k / sqrt(d))``; masked neighbours get
   ``-inf`` (zero probability).
 
+With ``NetConfig.rate_skip`` (v1.1 checkpoints) the last node feature of each neighbour is greedy's
+score of that neighbour over the best one, and the pointer adds ``alpha x`` it to its logit, alpha
+learned; W^Q of the pointer starts at zero, so the untrained network decides as greedy does and
+training learns where to deviate (:mod:`ipp_bench.policies.features`).
+
 Exact shortcuts (tested against :meth:`AttentionEncoder.encode_all`, the plain full layer):
 
 - with one encoder layer the decoder reads the encoder output of only the current node and its k
@@ -61,6 +66,8 @@ class NetConfig:
     n_heads: int = 4  # [-] heads of the encoder and decoder attention
     ff_dim: int = 512  # [-] hidden width of the feed-forward sublayers
     tanh_clip: float = 10.0  # [-] C in C tanh(u) of the pointer logits
+    rate_skip: bool = False  # add alpha x (the last node feature of each neighbour) to its logit
+    rate_skip_init: float = 20.0  # [-] alpha at initialisation (20: the second best at 0.9 x the best's rate is 7x less likely)
 
     def __post_init__(self) -> None:
         for name in ("node_dim", "pe_dim", "embed_dim", "n_heads", "ff_dim"):
@@ -72,6 +79,13 @@ class NetConfig:
                 f"NetConfig.embed_dim = {self.embed_dim} is invalid: expected a multiple of "
                 f"n_heads = {self.n_heads}"
             )
+        if not isinstance(self.rate_skip, bool):
+            raise ValueError(f"NetConfig.rate_skip = {self.rate_skip!r} is invalid: expected true or false")
+        if self.rate_skip and self.node_dim < 2:
+            raise ValueError(f"NetConfig.rate_skip needs the rate as an extra node feature: node_dim = "
+                             f"{self.node_dim} is invalid, expected >= 2")
+        if not (math.isfinite(self.rate_skip_init) and self.rate_skip_init > 0):
+            raise ValueError(f"NetConfig.rate_skip_init = {self.rate_skip_init!r} is invalid: expected a number > 0")
         if not self.tanh_clip > 0:
             raise ValueError(f"NetConfig.tanh_clip = {self.tanh_clip!r} is invalid: expected > 0")
 
@@ -230,7 +244,13 @@ class ContextDecoder(nn.Module):
 
 
 class PointerHead(nn.Module):
-    """Single-head pointer attention: one logit per neighbour, C tanh(q.k / sqrt(d))."""
+    """Single-head pointer attention: one logit per neighbour, C tanh(q.k / sqrt(d)).
+
+    With ``cfg.rate_skip`` the logit is ``C tanh(q.k / sqrt(d)) + alpha r`` with r each neighbour's
+    rate feature (greedy's score over the best one, :func:`ipp_bench.policies.features.add_rate_feature`)
+    and alpha = exp(log_alpha) learned; W^Q starts at zero, so an untrained network is greedy made
+    soft, and training learns where to deviate from it.
+    """
 
     def __init__(self, cfg: NetConfig) -> None:
         super().__init__()
@@ -238,16 +258,29 @@ class PointerHead(nn.Module):
         self.w_k = nn.Linear(cfg.embed_dim, cfg.embed_dim, bias=False)
         self.clip = cfg.tanh_clip
         self.scale = 1.0 / math.sqrt(cfg.embed_dim)
+        if cfg.rate_skip:
+            nn.init.zeros_(self.w_q.weight)
+            self.log_alpha = nn.Parameter(torch.tensor(math.log(cfg.rate_skip_init)))
 
     def forward(
-        self, context: torch.Tensor, h_nb: torch.Tensor, mask: torch.Tensor, masked_value: float = NEG_INF
+        self, context: torch.Tensor, h_nb: torch.Tensor, mask: torch.Tensor, masked_value: float = NEG_INF,
+        rate: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """Logits (B, k); masked neighbours get ``masked_value``."""
+        """Logits (B, k); masked neighbours get ``masked_value``; ``rate`` (B, k) with ``rate_skip``."""
         q = self.w_q(context).unsqueeze(1)  # (B, 1, d)
         k = self.w_k(h_nb)  # (B, k, d)
         u = (q * k).sum(-1) * self.scale
         logits = self.clip * torch.tanh(u)
+        if rate is not None:
+            logits = logits + self.log_alpha.exp() * rate
         return logits.masked_fill(~mask, masked_value)
+
+
+def neighbour_rate(cfg: NetConfig, node_features: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor | None:
+    """(B, k) the last node feature of each neighbour with ``cfg.rate_skip``, else None."""
+    if not cfg.rate_skip:
+        return None
+    return node_features[..., -1].gather(1, neighbours)
 
 
 class AttentionNet(nn.Module):
@@ -280,7 +313,8 @@ class AttentionNet(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         enc = self.encoder(node_features, pos_encoding, current, neighbours, budget)
         ctx = self.decoder(enc[:, 0], enc[:, 1:], mask)
-        return self.pointer(ctx, enc[:, 1:], mask), self.value_head(ctx).squeeze(-1)
+        rate = neighbour_rate(self.cfg, node_features, neighbours)
+        return self.pointer(ctx, enc[:, 1:], mask, rate=rate), self.value_head(ctx).squeeze(-1)
 
     def forward_obs(self, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Same as forward, from a batched observation dict of tensors (any numeric dtype)."""

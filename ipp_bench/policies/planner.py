@@ -116,10 +116,10 @@ class AttentionPlanner(GraphPlanner):
         return softmax(self._logits(obs))
 
     def _logits(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        if self.net.cfg.node_dim == 6 and np.shape(obs["node_features"])[-1] == 5:
-            from .features import add_gain_feature  # trained with the look-gain feature
+        if self.net.cfg.node_dim != np.shape(obs["node_features"])[-1]:
+            from .features import extend_observation  # trained with the look-gain (and rate) features
 
-            obs = add_gain_feature(obs, self.view)
+            obs = extend_observation(obs, self.view, self.net.cfg.node_dim)
         self._check(obs)
         torch = self._torch
         mask = np.asarray(obs["action_mask"]).astype(bool).reshape(-1)

@@ -34,6 +34,7 @@ from ipp_bench.policies.network import (
     ContextDecoder,
     NetConfig,
     PointerHead,
+    neighbour_rate,
     obs_to_inputs,
 )
 
@@ -56,25 +57,30 @@ def _check_obs_space(observation_space: spaces.Space, cfg: NetConfig) -> int:
 
 
 class AttentionExtractor(BaseFeaturesExtractor):
-    """Encoder as an SB3 features extractor: (B, (1 + k) d + k) = [h_current, h_neighbours, mask]."""
+    """Encoder as an SB3 features extractor: (B, (1 + k) d + k) = [h_current, h_neighbours, mask]
+    (and the neighbours' rate feature, k more columns, with ``rate_skip``)."""
 
     def __init__(self, observation_space: spaces.Dict, net_config: dict[str, Any] | None = None) -> None:
         cfg = NetConfig.from_dict(net_config or {})
         k = _check_obs_space(observation_space, cfg)
-        super().__init__(observation_space, features_dim=(1 + k) * cfg.embed_dim + k)
+        super().__init__(observation_space, features_dim=(1 + k) * cfg.embed_dim + k * (1 + cfg.rate_skip))
         self.cfg, self.k = cfg, k
         self.encoder = AttentionEncoder(cfg)
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
         nf, pe, cur, nb, mask, budget = obs_to_inputs(observations)
         enc = self.encoder(nf, pe, cur, nb, budget)  # (B, 1 + k, d)
-        return torch.cat([enc.flatten(1), mask.to(enc.dtype)], dim=1)
+        parts = [enc.flatten(1), mask.to(enc.dtype)]
+        rate = neighbour_rate(self.cfg, nf, nb)
+        return torch.cat(parts if rate is None else [*parts, rate], dim=1)
 
 
-def _split_features(features: torch.Tensor, k: int, d: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _split_features(features: torch.Tensor, k: int, d: int):
+    """[h_current, h_neighbours, mask (, rate)] -> (h_cur, h_nb, mask, rate or None)."""
     enc = features[:, : (1 + k) * d].reshape(-1, 1 + k, d)
-    mask = features[:, (1 + k) * d :] > 0.5
-    return enc[:, 0], enc[:, 1:], mask
+    mask = features[:, (1 + k) * d : (1 + k) * d + k] > 0.5
+    rate = features[:, (1 + k) * d + k :]
+    return enc[:, 0], enc[:, 1:], mask, (rate if rate.shape[1] else None)
 
 
 class AttentionDecoderExtractor(nn.Module):
@@ -85,12 +91,13 @@ class AttentionDecoderExtractor(nn.Module):
         self.cfg, self.k = cfg, k
         self.decoder = ContextDecoder(cfg)
         self.latent_dim_vf = cfg.embed_dim
-        self.latent_dim_pi = (1 + k) * cfg.embed_dim + k  # [context, h_neighbours, mask]
+        self.latent_dim_pi = (1 + k) * cfg.embed_dim + k * (1 + cfg.rate_skip)  # [context, h_nb, mask (, rate)]
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        h_cur, h_nb, mask = _split_features(features, self.k, self.cfg.embed_dim)
+        h_cur, h_nb, mask, rate = _split_features(features, self.k, self.cfg.embed_dim)
         ctx = self.decoder(h_cur, h_nb, mask)
-        latent_pi = torch.cat([ctx, h_nb.flatten(1), mask.to(ctx.dtype)], dim=1)
+        parts = [ctx, h_nb.flatten(1), mask.to(ctx.dtype)]
+        latent_pi = torch.cat(parts if rate is None else [*parts, rate], dim=1)
         return latent_pi, ctx
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
@@ -109,8 +116,8 @@ class PointerActionNet(nn.Module):
         self.pointer = PointerHead(cfg)
 
     def forward(self, latent_pi: torch.Tensor) -> torch.Tensor:
-        ctx, h_nb, mask = _split_features(latent_pi, self.k, self.cfg.embed_dim)
-        return self.pointer(ctx, h_nb, mask, masked_value=MASKED_LOGIT)
+        ctx, h_nb, mask, rate = _split_features(latent_pi, self.k, self.cfg.embed_dim)
+        return self.pointer(ctx, h_nb, mask, masked_value=MASKED_LOGIT, rate=rate)
 
 
 class AttentionPolicy(MaskableActorCriticPolicy):

@@ -69,7 +69,7 @@ import torch
 from ipp_bench._threads import available_cpus
 from ipp_bench.envs.registry import parse_overrides
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, gain_feature_wrapper
+from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, RATE_NODE_DIM, gain_feature_wrapper
 from ipp_bench.policies.network import AttentionNet, NetConfig
 from ipp_bench.policies.warmstart import check_expert, warm_start
 
@@ -121,6 +121,10 @@ class TrainArgs:
     ff_dim: int = opt(512, "feed-forward width", NET)
     gain_feature: bool = opt(False, "add the look-gain node feature (ipp_bench.policies.features): the predicted "
                                     "ROI trace reduction of one look from every node", NET)
+    rate_skip: bool = opt(False, "also add greedy's score of each neighbour over the best one as a node feature "
+                                 "and to the pointer logits times a learned weight (the network starts as a "
+                                 "softened greedy; implies --gain-feature)", NET)
+    rate_skip_init: float = opt(20.0, "the weight alpha of greedy's score at initialisation (with --rate-skip)", NET)
     init: str = opt("", "start from the weights of this exported checkpoint (.pt, e.g. an earlier run's "
                         "warmstart/bc.pt): the warm start fine-tunes them, or PPO starts from them", NET)
     warm_start: str = opt("none", "roadmap planner to imitate before PPO, e.g. greedy; 'none' to skip", WARM)
@@ -139,6 +143,10 @@ class TrainArgs:
     progress: bool = opt(True, "draw a progress bar (SB3's ProgressBarCallback)", VAL)
 
     def net_config(self) -> NetConfig:
+        if self.rate_skip:
+            return NetConfig(node_dim=RATE_NODE_DIM, rate_skip=True, rate_skip_init=self.rate_skip_init,
+                             embed_dim=self.embed_dim,
+                             n_heads=self.n_heads, ff_dim=self.ff_dim)
         return NetConfig(node_dim=GAIN_NODE_DIM if self.gain_feature else BASE_NODE_DIM,
                          embed_dim=self.embed_dim, n_heads=self.n_heads, ff_dim=self.ff_dim)
 
@@ -290,6 +298,8 @@ def make_env(task: str, **overrides: Any):
 def make_train_env(cfg: TrainArgs):
     """The training task with the run's ``--env`` overrides (and the look-gain feature if asked for)."""
     env = make_env(cfg.task, **parse_overrides(cfg.env))
+    if cfg.rate_skip:
+        return gain_feature_wrapper(env, rate=True)
     return gain_feature_wrapper(env) if cfg.gain_feature else env
 
 

@@ -29,7 +29,7 @@ import torch.nn.functional as F
 from ipp_bench.planners.base import GraphPlanner
 from ipp_bench.planners.episode import fly_episode
 from ipp_bench.policies.checkpoint import load_checkpoint, save_checkpoint
-from ipp_bench.policies.features import add_gain_feature
+from ipp_bench.policies.features import extend_observation
 from ipp_bench.policies.network import MASKED_LOGIT, AttentionNet, NetConfig
 
 
@@ -76,10 +76,10 @@ class _DaggerPlanner(GraphPlanner):
     name = "dagger"
 
     def __init__(self, expert: _PlannerExpert, net: AttentionNet | None, beta: float, rng: np.random.Generator,
-                 device: torch.device, temperature: float, gain_feature: bool) -> None:
+                 device: torch.device, temperature: float, node_dim: int) -> None:
         super().__init__(None)
         self.expert, self.net, self.beta, self.student_rng = expert, net, beta, rng
-        self.device, self.temperature, self.gain_feature = device, temperature, gain_feature
+        self.device, self.temperature, self.node_dim = device, temperature, node_dim
         self.obs_list: list[dict] = []
         self.actions: list[int] = []
         self.targets: list[np.ndarray] = []
@@ -89,8 +89,7 @@ class _DaggerPlanner(GraphPlanner):
         self.expert.planner.reset(view, seed)
 
     def act(self, obs: dict) -> int:
-        if self.gain_feature:  # the observation the student is trained on
-            obs = add_gain_feature(obs, self.view)
+        obs = extend_observation(obs, self.view, self.node_dim)  # the observation the student is trained on
         a_exp, scores = self.expert(obs)
         self.targets.append(soft_target(a_exp, scores, len(obs["action_mask"]), self.temperature))
         a = a_exp
@@ -205,10 +204,10 @@ def collect_episodes(env, expert, net: AttentionNet | None, episodes: int, beta:
     executed with probability ``beta`` (else the student's, sampled); every state is labelled with
     the expert's action. ``env`` is the training env (the look-gain wrapper adds that feature)."""
     base = env.unwrapped
-    gain = env.observation_space["node_features"].shape[-1] > base.observation_space["node_features"].shape[-1]
+    node_dim = env.observation_space["node_features"].shape[-1]
     red, steps = [], 0
     for e in range(episodes):
-        planner = _DaggerPlanner(expert, net, beta, rng, device, temperature, gain)
+        planner = _DaggerPlanner(expert, net, beta, rng, device, temperature, node_dim)
         rewards: list[float] = []
         result = fly_episode(base, planner, seed0 + e, on_decision=lambda d: rewards.append(float(d.reward)))
         data.add_episode(planner.obs_list, planner.actions, planner.targets, rewards, gamma)

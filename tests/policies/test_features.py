@@ -59,3 +59,59 @@ def test_planner_with_a_gain_feature_checkpoint_runs_on_15_and_30(tmp_path):
             a = planner.act(obs)
             assert env.unwrapped.action_masks()[a]
             obs, *_ = env.step(a)
+
+
+def test_rate_feature_is_greedys_score_over_the_best_and_an_untrained_rate_skip_net_is_greedy(tmp_path):
+    import torch
+
+    from ipp_bench.policies.checkpoint import save_checkpoint
+    from ipp_bench.policies.features import RATE_NODE_DIM, add_rate_feature
+    from ipp_bench.policies.network import AttentionNet, NetConfig
+
+    torch.manual_seed(0)
+    path = tmp_path / "rate.pt"
+    save_checkpoint(AttentionNet(NetConfig(node_dim=RATE_NODE_DIM, rate_skip=True, embed_dim=16, n_heads=2,
+                                           ff_dim=32)), path)
+    for task in ("ipp_bench/Grid15Eval-v1", "ipp_bench/Grid30Eval-v1"):
+        env = gym.make(task).unwrapped
+        obs, _ = env.reset(seed=3)
+        view = RobotView(env)
+        greedy, policy = make_planner("greedy"), make_planner(f"attention:checkpoint={path}")
+        greedy.reset(view, 3)
+        policy.reset(view, 3)
+        for _ in range(8):
+            scores = greedy.scores(obs)
+            ext = add_rate_feature(obs, view)
+            rate = ext["node_features"][obs["neighbours"], -1]
+            allowed = obs["action_mask"].astype(bool)
+            # greedy's score (an independent computation: the planner's own) divided by the best allowed one
+            np.testing.assert_allclose(rate[allowed], scores[allowed] / scores[allowed].max(), rtol=1e-6)
+            assert np.all(rate[~allowed] == 0)
+            others = np.setdiff1d(np.arange(env.roadmap.n_nodes), obs["neighbours"])
+            assert np.all(ext["node_features"][others, -1] == 0)
+            # W^Q starts at zero: the untrained network decides as greedy does
+            a = greedy.act(obs)
+            assert policy.act(obs) == a
+            obs, *_ = env.step(a)
+
+
+def test_rate_skip_sb3_policy_matches_its_attention_net():
+    import torch
+    from sb3_contrib import MaskablePPO
+
+    from ipp_bench.policies.features import gain_feature_wrapper
+    from ipp_bench.policies.sb3 import AttentionPolicy
+
+    env = gain_feature_wrapper(gym.make("ipp_bench/Grid15Train-v1"), rate=True)
+    model = MaskablePPO(AttentionPolicy, env, n_steps=16, batch_size=16, n_epochs=1, seed=0, policy_kwargs={
+        "net_config": {"node_dim": 7, "rate_skip": True, "embed_dim": 16, "n_heads": 2, "ff_dim": 32}})
+    model.learn(16)  # moves W^Q off zero, so both terms of the logits are at work
+    obs, _ = env.reset(seed=5)
+    t, _ = model.policy.obs_to_tensor(obs)
+    with torch.no_grad():
+        logits, value = model.policy.attention_net().forward_obs(t)
+        ref = model.policy.get_distribution(t).distribution.logits
+        ref_value = model.policy.predict_values(t)
+    torch.testing.assert_close(torch.softmax(logits, -1), torch.softmax(ref, -1))
+    torch.testing.assert_close(value, ref_value[:, 0])
+    assert model.policy.action_net.pointer.w_q.weight.abs().sum() > 0

@@ -109,6 +109,10 @@ def test_config_validation_names_the_field():
         NetConfig(embed_dim=130, n_heads=4)
     with pytest.raises(ValueError, match="unknown NetConfig fields"):
         NetConfig.from_dict({"hidden": 3})
+    with pytest.raises(ValueError, match="rate_skip_init = -1"):
+        NetConfig(node_dim=7, rate_skip=True, rate_skip_init=-1.0)
+    with pytest.raises(ValueError, match="rate_skip = 'yes'"):
+        NetConfig(rate_skip="yes")
 
 
 def test_gradients_reach_every_parameter():

@@ -22,14 +22,13 @@ here scores the ROI uncertainty reduction at the report times of the shared epis
 (:func:`ipp_bench.planners.episode.fly_episode` with the ``attention`` planner, exactly as the
 leaderboard plays it).
 
-Defaults are the paper's PPO settings (Adam, lr 1e-5, batch 128, gamma 0.99, one-step TD
-advantages = GAE lambda 0) and no warm start, except where they set the speed: 16 environments x
-64 steps per rollout (paper: 5 instances), one epoch per rollout (paper: 8) and a network of
-d = 64, feed-forward 256 (paper: 128 / 512), with the environments in one worker process per CPU.
-On the 2-core machine that is 3-4x the env steps per second of the paper's settings, with the
-same validation per env step in a same-seed check (``benchmarks/RESULTS.md``, "Training
-throughput"). See ``ipp_bench/policies/checkpoints/README.md`` for the settings of the shipped
-checkpoint and why they differ.
+Defaults are the paper's PPO settings and network (Adam, lr 1e-5, batch 128, gamma 0.99, one-step
+TD advantages = GAE lambda 0, d 128 / feed-forward 512) and no warm start, except where they set
+the speed: 16 environments x 64 steps per rollout (paper: 5 instances) and one epoch per rollout
+(paper: 8), with the environments in one worker process per CPU. The fastest configuration
+measured adds ``--embed-dim 64 --ff-dim 256`` (``benchmarks/RESULTS.md``, "Training throughput",
+with the learning checks of both). See ``ipp_bench/policies/checkpoints/README.md`` for the
+settings of the shipped checkpoint and why they differ.
 
 Run folder (``--out DIR``, default ``runs/<task>__attention__<seed>__<time>``)::
 
@@ -125,9 +124,10 @@ class TrainArgs:
     vf_coef: float = opt(0.5, "value loss weight", PPO)
     max_grad_norm: float = opt(0.5, "gradient clip", PPO)
     target_kl: float = opt(0.0, "early-stop an update past this KL (0 = off)", PPO)
-    embed_dim: int = opt(64, "d, the embedding size (CAtNIPP / paper: 128)", NET)
+    embed_dim: int = opt(128, "d, the embedding size (CAtNIPP / paper; 64 with --ff-dim 256 trains about 1.5x as "
+                              "fast per step)", NET)
     n_heads: int = opt(4, "attention heads", NET)
-    ff_dim: int = opt(256, "feed-forward width (CAtNIPP / paper: 512)", NET)
+    ff_dim: int = opt(512, "feed-forward width (CAtNIPP / paper)", NET)
     gain_feature: bool = opt(False, "add the look-gain node feature (ipp_bench.policies.features): the predicted "
                                     "ROI trace reduction of one look from every node", NET)
     init: str = opt("", "start from the weights of this exported checkpoint (.pt, e.g. an earlier run's "

@@ -24,6 +24,7 @@ main process spent 0.55 ms per environment per step writing actions to the pipes
 from __future__ import annotations
 
 import multiprocessing as mp
+import signal
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -83,6 +84,8 @@ class MasksFromObservation(VecEnvWrapper):
 
 def _shard_worker(remote, parent_remote, env_fns: CloudpickleWrapper) -> None:
     """Worker process of :class:`ShardedSubprocVecEnv`: a ``DummyVecEnv`` over its environments."""
+    # Ctrl-C is the main process's to handle (it saves and says how to resume); the workers end with it.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     parent_remote.close()
     venv = DummyVecEnv(env_fns.var)
     while True:

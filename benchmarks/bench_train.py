@@ -3,8 +3,9 @@
 Usage::
 
     python benchmarks/bench_train.py                                  # Grid15Train-v1, the defaults
+    python benchmarks/bench_train.py --gain-feature --embed-dim 64 --ff-dim 256   # the fast configuration
     python benchmarks/bench_train.py --task ipp_bench/Grid30Train-v1 --gain-feature
-    python benchmarks/bench_train.py --n-epochs 4 --embed-dim 128 --ff-dim 512   # any TrainArgs option
+    python benchmarks/bench_train.py --n-epochs 4 --target-kl 0.02 --skip-profile  # any TrainArgs option
 
 Builds the PPO phase exactly as ``ipp-bench train`` does (``MaskablePPO`` + ``AttentionPolicy``,
 ``policy_kwargs`` and the vec env of :mod:`ipp_bench.policies.train`; its options are
@@ -12,7 +13,8 @@ Builds the PPO phase exactly as ``ipp-bench train`` does (``MaskablePPO`` + ``At
 each after one warm-up rollout:
 
 1. **throughput**: as configured (``--vec-env subproc`` by default: environments in worker
-   processes), nothing wrapped: env steps per second end to end;
+   processes), nothing wrapped: env steps per second, and the CPU time per env step of the main
+   process and of the worker processes (steadier than the wall time on a shared machine);
 2. **profile**: with ``--vec-env dummy`` (environments in this process, so that they can be
    timed; same transitions), splitting the wall time by wrapping, in this process only:
 

@@ -3,6 +3,7 @@
 - :mod:`~ipp_bench.policies.network`: the encoder / pointer-decoder network (torch only);
 - :mod:`~ipp_bench.policies.checkpoint`: the small checkpoint format and the shipped checkpoint;
 - :mod:`~ipp_bench.policies.sb3`: ``AttentionPolicy`` for ``sb3_contrib.MaskablePPO``;
+- :mod:`~ipp_bench.policies.vec`: the training vec env (workers, positional encoding held by the policy);
 - :mod:`~ipp_bench.policies.train`: ``ipp-bench train`` (behaviour-cloning warm start + MaskablePPO).
 
 Importing this package needs torch only; the SB3 policy and the training code need the

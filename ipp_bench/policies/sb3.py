@@ -11,6 +11,13 @@ Built on SB3's extension points, without forking any of its code:
 - ``action_net``: replaced after ``_build`` by the pointer head (:class:`PointerActionNet`), after
   which the optimizer is rebuilt (SB3 creates it last, over the old ``action_net``).
 
+The positional encoding is a constant of the roadmap (``GraphIPPEnv`` hands the same (N, P) array
+in every observation). Training passes it once as ``policy_kwargs["pos_encoding"]`` and drops it
+from the observations (:class:`~ipp_bench.policies.vec.DropPosEncoding`): the features extractor
+keeps it as a buffer and attaches it to every batch, so the rollout buffer does not store it per
+step (at 1800 nodes 230 kB of the 275 kB an observation takes) and worker processes do not send
+it. The policy saves it with its constructor arguments; without it, the observation must carry it.
+
 ``policy.attention_net()`` returns a plain :class:`~ipp_bench.policies.network.AttentionNet` that
 shares these modules, which is what the shipped checkpoint stores.
 """
@@ -19,6 +26,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import torch
 from gymnasium import spaces
 from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
@@ -41,18 +49,37 @@ from ipp_bench.policies.network import (
 OBS_KEYS = ("node_features", "pos_encoding", "current_node", "neighbours", "action_mask", "budget")
 
 
-def _check_obs_space(observation_space: spaces.Space, cfg: NetConfig) -> int:
-    """Validate the Dict observation space; return k (neighbours per node)."""
+def _as_pos_encoding(pos_encoding: Any) -> torch.Tensor | None:
+    """``policy_kwargs["pos_encoding"]`` (array-like (N, P) or None) as a float32 tensor."""
+    if pos_encoding is None:
+        return None
+    pe = torch.tensor(np.array(pos_encoding, dtype=np.float32))
+    if pe.dim() != 2:
+        raise ValueError(f"pos_encoding must be the roadmap's (N, P) array; got shape {tuple(pe.shape)}")
+    return pe
+
+
+def _check_obs_space(observation_space: spaces.Space, cfg: NetConfig, pos_encoding: torch.Tensor | None = None) -> int:
+    """Validate the Dict observation space (``pos_encoding`` may come from the policy); return k."""
     if not isinstance(observation_space, spaces.Dict):
         raise TypeError(
             f"AttentionPolicy needs the Dict observation of GraphIPPEnv (keys {OBS_KEYS}); "
             f"got {type(observation_space).__name__}"
         )
-    missing = [key for key in OBS_KEYS if key not in observation_space.spaces]
+    needed = OBS_KEYS if pos_encoding is None else tuple(k for k in OBS_KEYS if k != "pos_encoding")
+    missing = [key for key in needed if key not in observation_space.spaces]
     if missing:
-        raise ValueError(f"observation space lacks {missing}; AttentionPolicy needs the keys {OBS_KEYS}")
-    check_feature_dims(cfg, observation_space["node_features"].shape[-1], observation_space["pos_encoding"].shape[-1],
-                       source="AttentionPolicy")
+        raise ValueError(f"observation space lacks {missing}; AttentionPolicy needs the keys {needed}"
+                         + ("" if pos_encoding is not None else " (or pos_encoding in policy_kwargs)"))
+    n_nodes, n_feat = observation_space["node_features"].shape
+    if pos_encoding is None:
+        pe_dim = observation_space["pos_encoding"].shape[-1]
+    else:
+        if pos_encoding.shape[0] != n_nodes:
+            raise ValueError(f"policy_kwargs pos_encoding has {pos_encoding.shape[0]} rows, the observation "
+                             f"{n_nodes} nodes: it must be the roadmap of the training task")
+        pe_dim = pos_encoding.shape[1]
+    check_feature_dims(cfg, n_feat, pe_dim, source="AttentionPolicy")
     return int(observation_space["neighbours"].shape[0])
 
 
@@ -60,14 +87,21 @@ class AttentionExtractor(BaseFeaturesExtractor):
     """Encoder as an SB3 features extractor: (B, (1 + k) d + k) = [h_current, h_neighbours, mask]
     (and the neighbours' rate feature, k more columns, with ``rate_skip``)."""
 
-    def __init__(self, observation_space: spaces.Dict, net_config: dict[str, Any] | None = None) -> None:
+    def __init__(self, observation_space: spaces.Dict, net_config: dict[str, Any] | None = None,
+                 pos_encoding: Any = None) -> None:
         cfg = NetConfig.from_dict(net_config or {})
-        k = _check_obs_space(observation_space, cfg)
+        pe = _as_pos_encoding(pos_encoding)
+        k = _check_obs_space(observation_space, cfg, pe)
         super().__init__(observation_space, features_dim=(1 + k) * cfg.embed_dim + k * (1 + cfg.rate_skip))
         self.cfg, self.k = cfg, k
         self.encoder = AttentionEncoder(cfg)
+        # Not in the state dict: the policy's constructor arguments carry it (and checkpoints stay as they are).
+        self.register_buffer("pos_encoding", pe, persistent=False)
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        if "pos_encoding" not in observations:  # the roadmap's constant, attached without a copy
+            b = observations["node_features"].shape[0]
+            observations = {**observations, "pos_encoding": self.pos_encoding.expand(b, *self.pos_encoding.shape)}
         nf, pe, cur, nb, mask, budget = obs_to_inputs(observations)
         enc = self.encoder(nf, pe, cur, nb, budget)  # (B, 1 + k, d)
         parts = [enc.flatten(1), mask.to(enc.dtype)]
@@ -128,6 +162,7 @@ class AttentionPolicy(MaskableActorCriticPolicy):
         action_space: ``Discrete(k)``.
         lr_schedule: SB3 learning-rate schedule.
         net_config: :class:`NetConfig` fields (``embed_dim``, ``n_heads``, ...) as a dict.
+        pos_encoding: the roadmap's (N, P) positional encoding, for observations without one.
         **kwargs: passed to ``MaskableActorCriticPolicy`` (``optimizer_kwargs``, ...).
     """
 
@@ -137,15 +172,18 @@ class AttentionPolicy(MaskableActorCriticPolicy):
         action_space: spaces.Space,
         lr_schedule: Schedule,
         net_config: dict[str, Any] | None = None,
+        pos_encoding: Any = None,
         **kwargs: Any,
     ) -> None:
         self.net_config = NetConfig.from_dict(net_config or {}).to_dict()
-        k = _check_obs_space(observation_space, NetConfig.from_dict(self.net_config))
+        pe = _as_pos_encoding(pos_encoding)
+        self.pos_encoding = None if pe is None else pe.numpy()
+        k = _check_obs_space(observation_space, NetConfig.from_dict(self.net_config), pe)
         if not isinstance(action_space, spaces.Discrete) or int(action_space.n) != k:
             raise ValueError(f"AttentionPolicy needs action space Discrete({k}) (one action per neighbour); got {action_space}")
         kwargs.setdefault("ortho_init", False)  # PyTorch's default init suits attention layers better
         kwargs["features_extractor_class"] = AttentionExtractor
-        kwargs["features_extractor_kwargs"] = {"net_config": self.net_config}
+        kwargs["features_extractor_kwargs"] = {"net_config": self.net_config, "pos_encoding": self.pos_encoding}
         kwargs.setdefault("share_features_extractor", True)
         if not kwargs["share_features_extractor"]:
             raise ValueError("AttentionPolicy shares its encoder between actor and critic (share_features_extractor=True)")
@@ -165,6 +203,7 @@ class AttentionPolicy(MaskableActorCriticPolicy):
         data.pop("features_extractor_class", None)
         data.pop("features_extractor_kwargs", None)
         data["net_config"] = self.net_config
+        data["pos_encoding"] = self.pos_encoding
         return data
 
     def attention_net(self) -> AttentionNet:

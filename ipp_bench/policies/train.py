@@ -22,10 +22,13 @@ here scores the ROI uncertainty reduction at the report times of the shared epis
 (:func:`ipp_bench.planners.episode.fly_episode` with the ``attention`` planner, exactly as the
 leaderboard plays it).
 
-Defaults are the paper's PPO settings (Adam, lr 1e-5, 8 epochs per batch, batch 128, gamma 0.99,
-one-step TD advantages = GAE lambda 0, 5 parallel instances) and no warm start; see
-``ipp_bench/policies/checkpoints/README.md`` for the settings of the shipped checkpoint and why
-they differ.
+Defaults are the paper's PPO settings and network (Adam, lr 1e-5, batch 128, gamma 0.99, one-step
+TD advantages = GAE lambda 0, d 128 / feed-forward 512) and no warm start, except where they set
+the speed: 16 environments x 64 steps per rollout (paper: 5 instances) and one epoch per rollout
+(paper: 8), with the environments in one worker process per CPU. The fastest configuration
+measured adds ``--embed-dim 64 --ff-dim 256`` (``benchmarks/RESULTS.md``, "Training throughput",
+with the learning checks of both). See ``ipp_bench/policies/checkpoints/README.md`` for the
+settings of the shipped checkpoint and why they differ.
 
 Run folder (``--out DIR``, default ``runs/<task>__attention__<seed>__<time>``)::
 
@@ -46,7 +49,8 @@ Why this module is long (about 650 lines): it is the whole ``ipp-bench train`` c
 place, cleanrl-style: the argument dataclass from which the options are generated, the checks
 that run before a run folder exists, the run folder's bookkeeping (config, state, resume, export)
 and the PPO phase. The parts that stand on their own live beside it: the warm start
-(``warmstart.py``), the look-gain feature (``features.py``), the SB3 policy (``sb3.py``).
+(``warmstart.py``), the look-gain feature (``features.py``), the SB3 policy (``sb3.py``), the
+vectorised environments and what crosses from them to the policy (``vec.py``).
 """
 
 from __future__ import annotations
@@ -66,11 +70,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from ipp_bench._threads import available_cpus
+from ipp_bench._threads import available_cpus, keep_freed_memory
 from ipp_bench.envs.registry import parse_overrides
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, RATE_NODE_DIM, gain_feature_wrapper
 from ipp_bench.policies.network import AttentionNet, NetConfig
+from ipp_bench.policies.vec import VEC_ENVS
 from ipp_bench.policies.warmstart import check_expert, warm_start
 
 VAL_SEED0 = 10_000_000  # validation episodes use seeds VAL_SEED0 + i of the validation task
@@ -100,14 +105,17 @@ class TrainArgs:
     env: list[str] = opt([], "override a field of the task config for training, e.g. --env budget_s=200 "
                              "(repeatable; values are read as JSON where they parse)", metavar="KEY=VALUE")
     total_steps: int = opt(200_000, "PPO environment steps (the warm start comes on top)")
-    n_envs: int = opt(5, "parallel environments (paper: five instances)")
+    n_envs: int = opt(16, "parallel environments (paper: five instances; 16 batch the rollout's forward passes)")
     device: str = opt("auto", "torch device: auto, cpu, cuda or cuda:<n>")
     seed: int = opt(0, "seed of the network, the environments and the warm start")
     threads: int = opt(0, "torch intra-op threads; 0 = half the CPUs available, at least 1 (1 on 2 cores)")
+    vec_env: str = opt("subproc", "where the PPO environments step: subproc (one worker process each, on all "
+                                  "cores) or dummy (one after the other in this process); same transitions",
+                       choices=VEC_ENVS)
     out: str = opt("", "run folder; '' = runs/<task>__attention__<seed>__<time>")
-    n_steps: int = opt(128, "steps per env per rollout", PPO)
+    n_steps: int = opt(64, "steps per env per rollout (16 x 64 = 1024 per update)", PPO)
     batch_size: int = opt(128, "minibatch size (paper)", PPO)
-    n_epochs: int = opt(8, "epochs per rollout (paper: eight)", PPO)
+    n_epochs: int = opt(1, "epochs per rollout (paper: eight; each epoch costs as much as all the rest of a step)", PPO)
     learning_rate: float = opt(1e-5, "Adam learning rate (paper)", PPO)
     gamma: float = opt(0.99, "discount (paper)", PPO)
     gae_lambda: float = opt(0.0, "GAE lambda (0 = the paper's one-step TD advantage)", PPO)
@@ -116,9 +124,10 @@ class TrainArgs:
     vf_coef: float = opt(0.5, "value loss weight", PPO)
     max_grad_norm: float = opt(0.5, "gradient clip", PPO)
     target_kl: float = opt(0.0, "early-stop an update past this KL (0 = off)", PPO)
-    embed_dim: int = opt(128, "d, the embedding size (CAtNIPP / paper)", NET)
+    embed_dim: int = opt(128, "d, the embedding size (CAtNIPP / paper; 64 with --ff-dim 256 trains about 1.5x as "
+                              "fast per step)", NET)
     n_heads: int = opt(4, "attention heads", NET)
-    ff_dim: int = opt(512, "feed-forward width", NET)
+    ff_dim: int = opt(512, "feed-forward width (CAtNIPP / paper)", NET)
     gain_feature: bool = opt(False, "add the look-gain node feature (ipp_bench.policies.features): the predicted "
                                     "ROI trace reduction of one look from every node", NET)
     rate_skip: bool = opt(False, "also add greedy's score of each neighbour over the best one as a node feature "
@@ -152,8 +161,8 @@ class TrainArgs:
 
 
 # Options that may change when resuming a run; all others must match the saved config.
-_RESUMABLE = {"total_steps", "device", "threads", "progress", "out"}
-_NOT_IN_COMMAND = {"out", "device", "threads"}  # where and on what a run went, not what it is
+_RESUMABLE = {"total_steps", "device", "threads", "vec_env", "progress", "out"}
+_NOT_IN_COMMAND = {"out", "device", "threads", "vec_env"}  # where and on what a run went, not what it is
 
 
 def add_train_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -229,6 +238,8 @@ def _check(cfg: TrainArgs) -> None:
         raise ValueError("--learning-rate and --bc-lr must lie in (0, 1)")
     if not 0 <= cfg.gamma <= 1 or not 0 <= cfg.gae_lambda <= 1:
         raise ValueError("--gamma and --gae-lambda must lie in [0, 1]")
+    if cfg.vec_env not in VEC_ENVS:
+        raise ValueError(f"--vec-env {cfg.vec_env!r} is invalid: expected one of {', '.join(VEC_ENVS)}")
     if cfg.device not in ("auto", "cpu") and not cfg.device.startswith("cuda"):
         raise ValueError(f"--device {cfg.device!r} is invalid: expected auto, cpu, cuda or cuda:<n>")
     if cfg.device.startswith("cuda") and not torch.cuda.is_available():
@@ -459,14 +470,30 @@ def _write_state(run: Path, state: dict) -> None:
 
 
 def _vec_env(cfg: TrainArgs):
+    """The PPO environments (:func:`ipp_bench.policies.vec.make_vec_env`): no positional encoding in
+    the observations (see :func:`policy_kwargs`), masks from the observations."""
     from stable_baselines3.common.monitor import Monitor
-    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from ipp_bench.policies.vec import make_vec_env
 
     def make():
         return Monitor(make_train_env(cfg))
 
-    # Envs step in ~1-2 ms; the network dominates, so they run in this process (no subprocesses).
-    return DummyVecEnv([make] * cfg.n_envs)
+    return make_vec_env(make, cfg.n_envs, cfg.vec_env)
+
+
+def policy_kwargs(cfg: TrainArgs) -> dict[str, Any]:
+    """``AttentionPolicy`` arguments: the network sizes and the training roadmap's positional encoding."""
+    from ipp_bench.policies.vec import roadmap_pos_encoding
+
+    env = make_env(cfg.task, **parse_overrides(cfg.env))
+    pe = roadmap_pos_encoding(env)
+    env.close()
+    return {"net_config": cfg.net_config().to_dict(), "pos_encoding": pe}
+
+
+class ResumeError(ValueError):
+    """A run folder's PPO checkpoint cannot be continued by this version."""
 
 
 def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: dict, bc_path: Path | None,
@@ -480,7 +507,12 @@ def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: dict, bc_path: P
     latest = run / "checkpoints" / "latest.zip"
     (run / "checkpoints").mkdir(exist_ok=True)
     if latest.is_file():
-        model = MaskablePPO.load(latest, env=venv, device=device)
+        try:
+            model = MaskablePPO.load(latest, env=venv, device=device)
+        except ValueError as err:  # e.g. an archive of a version that kept pos_encoding in the observations
+            venv.close()
+            raise ResumeError(f"--resume: {latest} does not fit this version's training environments ({err}); "
+                              "finish that run with the ipp-bench version that started it, or start a new --out") from None
         say(f"resuming PPO from {latest} at step {model.num_timesteps}")
     else:
         model = MaskablePPO(
@@ -488,7 +520,7 @@ def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: dict, bc_path: P
             batch_size=cfg.batch_size, n_epochs=cfg.n_epochs, gamma=cfg.gamma, gae_lambda=cfg.gae_lambda,
             clip_range=cfg.clip_range, ent_coef=cfg.ent_coef, vf_coef=cfg.vf_coef,
             max_grad_norm=cfg.max_grad_norm, target_kl=cfg.target_kl or None,
-            policy_kwargs={"net_config": cfg.net_config().to_dict()}, seed=cfg.seed, device=device, verbose=0)
+            policy_kwargs=policy_kwargs(cfg), seed=cfg.seed, device=device, verbose=0)
         start = bc_path if bc_path is not None else (Path(cfg.init) if cfg.init else None)
         if start is not None:
             net, _ = load_checkpoint(start, device=device)
@@ -588,6 +620,7 @@ def run_train(args: argparse.Namespace) -> int:
         return 2
     run.mkdir(parents=True, exist_ok=True)
     threads = set_threads(cfg.threads)
+    kept = keep_freed_memory()  # before the vec env's worker processes fork: they inherit it
     device = _resolve_device(cfg.device)
     cfg_file = run / "config.json"
     if not cfg_file.is_file():
@@ -604,7 +637,8 @@ def run_train(args: argparse.Namespace) -> int:
         log_file.write(line + "\n")
         log_file.flush()
 
-    say(f"training {cfg.task} in {run} on {device} with {threads} torch threads")
+    say(f"training {cfg.task} in {run} on {device} with {threads} torch threads, {cfg.vec_env} vec env"
+        + (", freed memory kept for reuse (glibc)" if kept else ""))
     say(f"command: {command_line(cfg)}")
 
     def on_term(signum, frame):  # SIGTERM behaves like Ctrl-C: the last checkpoint stays valid
@@ -630,6 +664,9 @@ def run_train(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         say(f"interrupted; continue with: ipp-bench train --out {shlex.quote(str(run))} --resume")
         return 130
+    except ResumeError as err:
+        print(f"ipp-bench train: error: {' '.join(str(err).split())}", file=sys.stderr)
+        return 2
     finally:
         signal.signal(signal.SIGTERM, old)
         _write_state(run, state)

@@ -45,12 +45,31 @@ def test_tiny_training_run_then_resume(tmp_path):
     # Refuses to overwrite, refuses to change the recipe on resume, continues from step 64.
     assert _train(*TINY, "--total-steps", "64", "--out", str(run), check=False).returncode == 2
     assert _train("--out", str(run), "--resume", "--n-epochs", "3", check=False).returncode == 2
-    proc = _train("--out", str(run), "--resume", "--total-steps", "128", "--no-progress")
-    assert "resuming PPO" in proc.stdout and "at step 64" in proc.stdout
+    # Where the environments step is not part of the recipe: the resume steps them in this process.
+    proc = _train("--out", str(run), "--resume", "--total-steps", "128", "--no-progress", "--vec-env", "dummy")
+    assert "resuming PPO" in proc.stdout and "at step 64" in proc.stdout and "dummy vec env" in proc.stdout
     state = json.loads((run / "state.json").read_text())
     assert state["ppo_steps"] == 128
     steps_after = _logged_steps(run)
     assert steps_after[: len(steps_before)] == steps_before and max(steps_after) == 128
+
+
+def test_resume_of_an_archive_with_the_encoding_in_its_observations_is_one_line(tmp_path):
+    """latest.zip of the earlier layout (pos_encoding observed per step) is refused, not a traceback."""
+    import gymnasium as gym
+    from sb3_contrib import MaskablePPO
+
+    import ipp_bench.envs  # noqa: F401
+    from ipp_bench.policies.sb3 import AttentionPolicy
+
+    run = tmp_path / "run"
+    _train(*TINY, "--total-steps", "32", "--out", str(run))
+    old = MaskablePPO(AttentionPolicy, gym.make("ipp_bench/Grid15-v0"), n_steps=32, batch_size=32,
+                      policy_kwargs={"net_config": {"embed_dim": 16, "n_heads": 2, "ff_dim": 32}})
+    old.save(run / "checkpoints" / "latest.zip")
+    proc = _train("--out", str(run), "--resume", "--total-steps", "64", check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.count("\n") == 1 and "does not fit" in proc.stderr and "latest.zip" in proc.stderr
 
 
 def _logged_steps(run):
@@ -90,6 +109,12 @@ def test_options_are_generated_from_the_dataclass():
     flags = {a.dest for a in parser._actions}
     assert {f for f in TrainArgs.__dataclass_fields__} <= flags
     assert "(default 1e-05)" in parser.format_help()  # the help shows the dataclass default
+
+
+def test_bad_vec_env_is_refused_before_the_run_folder(tmp_path):
+    run = tmp_path / "run"
+    proc = _train(*TINY, "--vec-env", "threads", "--out", str(run), check=False)
+    assert proc.returncode == 2 and "--vec-env" in proc.stderr and "subproc" in proc.stderr and not run.exists()
 
 
 def test_warm_start_with_a_non_graph_planner_is_refused_before_the_run_folder(tmp_path):

@@ -1,0 +1,127 @@
+"""The training vec env: positional encoding held by the policy, masks from the observation, and
+environments in worker processes giving the same transitions as in this process."""
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("sb3_contrib")
+gym = pytest.importorskip("gymnasium")
+
+from sb3_contrib import MaskablePPO
+from stable_baselines3.common.monitor import Monitor
+
+import ipp_bench.envs  # noqa: F401
+from ipp_bench._threads import keep_freed_memory
+from ipp_bench.policies.sb3 import AttentionPolicy
+from ipp_bench.policies.vec import ShardedSubprocVecEnv, make_vec_env, roadmap_pos_encoding
+
+TASK = "ipp_bench/Grid15-v0"
+NET = {"embed_dim": 16, "n_heads": 2, "ff_dim": 32}
+
+
+def _make():
+    return Monitor(gym.make(TASK))
+
+
+def _pe():
+    env = gym.make(TASK)
+    pe = roadmap_pos_encoding(env)
+    env.close()
+    return pe
+
+
+def _params(model) -> list[torch.Tensor]:
+    return [p.detach().clone() for p in model.policy.parameters()]
+
+
+def test_policy_with_the_encoding_in_its_kwargs_equals_the_policy_reading_it_from_the_observation():
+    env = gym.make(TASK)
+    full = MaskablePPO(AttentionPolicy, env, n_steps=16, batch_size=16, seed=0, policy_kwargs={"net_config": NET})
+    venv = make_vec_env(_make, 1, "dummy")
+    assert "pos_encoding" not in venv.observation_space.spaces
+    held = MaskablePPO(AttentionPolicy, venv, n_steps=16, batch_size=16, seed=0,
+                       policy_kwargs={"net_config": NET, "pos_encoding": _pe()})
+    held.policy.load_state_dict(full.policy.state_dict())
+    obs, _ = env.reset(seed=3)
+    venv.seed(3)
+    vobs = venv.reset()
+    t_full, _ = full.policy.obs_to_tensor(obs)
+    t_held, _ = held.policy.obs_to_tensor(vobs)
+    with torch.no_grad():
+        torch.testing.assert_close(held.policy.get_distribution(t_held).distribution.logits,
+                                   full.policy.get_distribution(t_full).distribution.logits)
+        torch.testing.assert_close(held.policy.predict_values(t_held), full.policy.predict_values(t_full))
+    venv.close()
+
+
+def test_a_policy_without_the_encoding_anywhere_is_refused_in_one_line():
+    venv = make_vec_env(_make, 1, "dummy")
+    with pytest.raises(ValueError, match="lacks \\['pos_encoding'\\].*policy_kwargs"):
+        MaskablePPO(AttentionPolicy, venv, policy_kwargs={"net_config": NET})
+    with pytest.raises(ValueError, match="rows"):
+        MaskablePPO(AttentionPolicy, venv, policy_kwargs={"net_config": NET, "pos_encoding": np.zeros((7, 32))})
+    venv.close()
+
+
+def test_masks_come_from_the_observation_and_equal_the_envs_own():
+    venv = make_vec_env(_make, 3, "dummy")
+    venv.seed(1)
+    obs = venv.reset()
+    for _ in range(40):
+        asked = np.stack(venv.env_method("action_masks"))  # answered by the wrapper
+        own = np.stack(venv.venv.env_method("action_masks"))  # asked of the environments
+        np.testing.assert_array_equal(asked, own)
+        np.testing.assert_array_equal(asked, obs["action_mask"].astype(bool))
+        actions = np.array([np.flatnonzero(m)[0] for m in asked])
+        obs, *_ = venv.step(actions)
+    venv.close()
+
+
+def test_workers_give_the_same_training_as_this_process_and_save_load_keeps_the_encoding(tmp_path):
+    """Same seed -> same weights, whether the environments step here or in worker processes."""
+    weights = {}
+    for kind in ("dummy", "subproc"):
+        venv = make_vec_env(_make, 3, kind)
+        model = MaskablePPO(AttentionPolicy, venv, n_steps=16, batch_size=24, n_epochs=2, seed=0,
+                            policy_kwargs={"net_config": NET, "pos_encoding": _pe()})
+        model.learn(96)
+        weights[kind] = _params(model)
+        if kind == "subproc":
+            assert isinstance(venv.venv, ShardedSubprocVecEnv)
+            model.save(tmp_path / "m.zip")
+            loaded = MaskablePPO.load(tmp_path / "m.zip", env=venv)
+            np.testing.assert_array_equal(loaded.policy.pos_encoding, _pe())
+            obs = venv.reset()
+            a1, _ = model.predict(obs, action_masks=obs["action_mask"].astype(bool), deterministic=True)
+            a2, _ = loaded.predict(obs, action_masks=obs["action_mask"].astype(bool), deterministic=True)
+            np.testing.assert_array_equal(a1, a2)
+        venv.close()
+    for a, b in zip(weights["dummy"], weights["subproc"], strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+def test_sharded_workers_answer_attribute_calls_in_the_order_asked():
+    venv = ShardedSubprocVecEnv([_make] * 5, n_workers=2)
+    try:
+        venv.set_attr("tag", 7, indices=[4, 1])
+        assert venv.get_attr("tag", indices=[4, 1]) == [7, 7]
+        venv.seed(0)
+        venv.reset()
+        nodes = venv.get_attr("current_node")
+        assert venv.get_attr("current_node", indices=[3, 0]) == [nodes[3], nodes[0]]
+        assert venv.has_attr("action_masks") and not venv.has_attr("no_such_attribute")
+        with pytest.raises(AttributeError, match="no_such_attribute"):
+            venv.get_attr("no_such_attribute")
+        assert all(venv.env_is_wrapped(Monitor))
+    finally:
+        venv.close()
+
+
+def test_bad_vec_env_kind_is_refused():
+    with pytest.raises(ValueError, match="subproc"):
+        make_vec_env(_make, 1, "threads")
+
+
+def test_keep_freed_memory_reports_whether_it_applied():
+    assert isinstance(keep_freed_memory(), bool)

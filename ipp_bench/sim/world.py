@@ -282,4 +282,5 @@ def restrict(obs: Observation, seen: np.ndarray) -> Observation | None:
         return None
     W = obs.weights[rows]
     cols = np.any(W > 0, axis=0)
-    return Observation(cells=obs.cells[cols], weights=W[:, cols], var=obs.var[rows], altitude=obs.altitude)
+    return Observation(cells=obs.cells[cols], weights=W[:, cols], var=obs.var[rows], altitude=obs.altitude,
+                       factor=obs.factor, persistent=None if obs.persistent is None else obs.persistent[rows])

@@ -60,6 +60,8 @@ class MuJoCoMission(Mission):
         self.nis_log: list[tuple[float, float, int]] = []
         #: (read-outs, values, time [s]) of every Kalman update, as fused (calibration replays them)
         self.update_log: list[tuple[list[Observation], list[np.ndarray], float]] = []
+        #: (cells, the camera's fraction of each, resolution factor) of every read-out fused
+        self.cell_log: list[tuple[np.ndarray, np.ndarray, int]] = []
         #: (time [s], true xyz, estimated xyz) of every camera read-out
         self.camera_log: list[tuple[float, np.ndarray, np.ndarray]] = []
         if self.continuous:
@@ -166,6 +168,8 @@ class MuJoCoMission(Mission):
         self.measurement_log.append((float(time_s), *map(float, self.flight.position)))
         reading = self.world.last_reading
         self.camera_log.append((float(time_s), reading.body_xyz, reading.estimated_xyz))
+        if obs is not None:
+            self.cell_log.append((obs.cells, reading.fraction[obs.cells], obs.factor))
         return obs, z, float(time_s)
 
     def _measure(self, points, times) -> int:

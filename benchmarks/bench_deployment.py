@@ -75,7 +75,7 @@ def main() -> None:
             unc = " / ".join(f"{v:.1f}" for v in a[:, :, 0].mean(axis=0))
             rm = " / ".join(f"{v:.1f}" for v in a[:, :, 1].mean(axis=0))
             print(f"{mode:>7}: uncertainty reduction {unc} %   RMSE reduction {rm} %")
-        if "truth" in rows and rows["truth"]:
+        if rows.get("truth"):
             diff = np.array(rows["camera"])[:, -1, 2] - np.array(rows["truth"])[:, -1, 2]
             half = 1.96 * diff.std(ddof=1) / np.sqrt(len(diff)) if len(diff) > 1 else float("nan")
             print(f"final ROI RMSE, camera - truth: {diff.mean():+.4f} +- {half:.4f} (95 %), "

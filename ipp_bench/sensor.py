@@ -13,7 +13,9 @@ resolution factor repeats (``SensorConfig.persistent_var``, ``persistent_var_bin
 s_f per cell). A read-out row w then has error w^T e + v, and its variance for one look is
 ``var = f^e a (1 - exp(-b h)) + s_f sum(w^2)`` (what planners predict with); ``persistent`` is
 the second term, which :class:`~ipp_bench.belief.PersistentErrorBelief` carries as states instead of
-as noise, so that repeated looks are not taken as independent.
+as noise, so that repeated looks are not taken as independent. :meth:`Sensor.measure` (the graph
+tasks' simulated read-out) draws independent noise of variance ``var`` at every look: only the
+MuJoCo camera repeats its error.
 """
 
 from __future__ import annotations

@@ -64,8 +64,9 @@ class CalibrationResult:
     bias: np.ndarray  # (n_alt, n_f) mean error [field units]
     persistent: np.ndarray  # (n_alt, n_f) E[e1 e2] of two looks at the same altitude [field units^2]
     look_to_look: np.ndarray  # (n_alt, n_f) E[(e1 - e2)^2] / 2 [field units^2]
-    rest: np.ndarray  # (n_alt, n_f) look-to-look + altitude-specific persistent variance: R's data [field units^2]
+    rest: np.ndarray  # (n_alt, n_f) look-to-look + altitude-specific persistent variance [field units^2]
     count: np.ndarray  # (n_alt, n_f) number of scalar read-out pairs
+    # f^e a (1 - exp(-b h)) fitted to ``rest``: the white R of v1 before the error states, kept to compare
     a: float
     b: float
     e: float

@@ -223,4 +223,131 @@ class GPBelief:
         return np.maximum(np.diag(self.cov) - np.einsum("ij,ij->i", A, A), 0.0)
 
 
-__all__ = ["GPBelief", "matern32", "cell_centres", "prior_covariance"]
+def value_scale(t, floor: float) -> np.ndarray:
+    """Variance factor k + (1 - k) 4 t (1 - t) of a camera error at field value ``t`` (clipped to [0, 1])."""
+    t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0)
+    return floor + (1.0 - floor) * 4.0 * t * (1.0 - t)
+
+
+class PersistentErrorBelief:
+    """A field belief whose camera repeats its error: the persistent per-cell error as extra states.
+
+    Model: a read-out row w at resolution factor f measures ``z = w^T (x + e_f) + v``, where x (n,)
+    is the field, e_f (n,) the camera's persistent per-cell error at factor f (the same texture seen
+    again at that resolution is misread the same way) and v ~ N(0, r phi(z)) the look-to-look noise
+    (r: the sensor's white variance ``noise_variance``). The errors of a cell c at the two factors
+    are jointly Gaussian, independent of x and of other cells, with variances s_f phi(t_c) and
+    correlation rho (``SensorConfig.persistent_var``, ``persistent_var_binned``,
+    ``persistent_corr``); phi(t) = :func:`value_scale` (``noise_floor``): a cell with nothing to
+    misread errs less. t is plugged in from the data: the value of the row that first saw the cell
+    (for its error's prior, set then: until a cell is seen its error is independent of everything,
+    so setting its prior at that moment changes nothing else) and each row's own value (for v).
+
+    The state is ``[x, e_f1, e_f2, ...]`` (one block per factor with s_f > 0); a row's weights on it
+    are ``[w, w]`` over (x cells, e_f cells), with R = r phi(z). The update is
+    :meth:`GPBelief.update_local` on the augmented state (so :func:`gain_factor`, the one update)
+    and exact for the model: equal to the batch GP posterior of x under the marginal covariance of z
+    (``tests/test_belief.py``). After every update the field marginal (mean, covariance of x) is
+    written into ``field``, the belief that planners, observations and metrics read. n (1 + factors)
+    states: 675 on 15 x 15 with two factors.
+
+    Args:
+        field: the prior belief over the field (n cells); updated in place from then on.
+        sensor: the :class:`~ipp_bench.config.SensorConfig` with the camera's error constants.
+    """
+
+    def __init__(self, field: GPBelief, sensor):
+        self.field = field
+        self.floor = float(sensor.noise_floor)
+        n = field.n
+        self.variances = {f: sensor.persistent(f) for f in sorted({1, int(sensor.binning)})}
+        factors = [f for f, v in self.variances.items() if v > 0]
+        self.offset = {f: n * (i + 1) for i, f in enumerate(factors)}
+        self.corr = float(sensor.persistent_corr)
+        N = n * (1 + len(factors))
+        mean = np.zeros(N)
+        mean[:n] = field.mean
+        cov = np.zeros((N, N))
+        cov[:n, :n] = field.cov
+        self.state = GPBelief(mean, cov)
+        self.seen = np.zeros(n, dtype=bool)  # cells whose error prior is set
+
+    def _rows(self, observations, zs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The read-outs on the augmented state: (state columns, W over them, R, z), priors set first."""
+        parts = []
+        for o, z in zip(observations, zs):
+            z = np.asarray(z, dtype=np.float64).reshape(-1)
+            white = o.var if o.persistent is None else o.var - o.persistent
+            if self.offset:
+                self._set_priors(o, z)
+            R = white * value_scale(z, self.floor)
+            if o.factor in self.offset:
+                cols = np.concatenate([o.cells, o.cells + self.offset[o.factor]])
+                parts.append((cols, np.hstack([o.weights, o.weights]), R, z))
+            else:
+                parts.append((o.cells, o.weights, R, z))
+        if len(parts) == 1:
+            return parts[0]
+        cols = np.unique(np.concatenate([p[0] for p in parts]))
+        W = np.zeros((sum(p[1].shape[0] for p in parts), cols.size))
+        row = 0
+        for c, w, _, _ in parts:
+            W[row:row + w.shape[0], np.searchsorted(cols, c)] = w
+            row += w.shape[0]
+        return cols, W, np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts])
+
+    def _set_priors(self, obs, z: np.ndarray) -> None:
+        """Error priors of the cells ``obs`` sees for the first time: variance s_f phi(t), t their row's value."""
+        first = ~self.seen[obs.cells]
+        if not first.any():
+            return
+        t = np.zeros(obs.cells.size)
+        for w, value in zip(obs.weights, z):  # each cell lies in one row of a read-out
+            t[w > 0] = value
+        cells, scale = obs.cells[first], value_scale(t[first], self.floor)
+        cov = self.state.cov
+        sd = {f: np.sqrt(self.variances[f] * scale) for f in self.offset}
+        for f, o in self.offset.items():
+            cov[cells + o, cells + o] = sd[f] ** 2
+        if len(self.offset) == 2 and self.corr > 0:
+            (f1, o1), (f2, o2) = self.offset.items()
+            cov[cells + o1, cells + o2] = cov[cells + o2, cells + o1] = self.corr * sd[f1] * sd[f2]
+        self.seen[cells] = True
+
+    def innovation(self, observations, zs) -> tuple[np.ndarray, np.ndarray]:
+        """(nu, S) of a batch before its update: nu = z - H mu, S = H P H^T + R on the augmented state."""
+        cols, W, R, z = self._rows(observations, zs)
+        S = W @ self.state.cov[np.ix_(cols, cols)] @ W.T
+        S[np.diag_indices_from(S)] += R
+        return z - W @ self.state.mean[cols], S
+
+    def normalised_innovation(self, observations, zs) -> tuple[float, int]:
+        """NIS = nu^T S^-1 nu of a batch before its update (the augmented model's S), and its dof."""
+        nu, S = self.innovation(observations, zs)
+        return float(nu @ np.linalg.solve(S, nu)), int(nu.size)
+
+    def update(self, observations, zs) -> None:
+        """Kalman update with the read-outs ``observations`` and their values ``zs``, as one batch."""
+        cols, W, R, z = self._rows(observations, zs)
+        self.state.update_local(cols, W, z, R)
+        n = self.field.n
+        self.field.mean[:] = self.state.mean[:n]
+        self.field.cov[:] = self.state.cov[:n, :n]
+
+
+def _nis(mu: np.ndarray, P: np.ndarray, W: np.ndarray, z: np.ndarray, var: np.ndarray) -> tuple[float, int]:
+    nu = np.asarray(z, dtype=np.float64) - W @ mu
+    S = W @ P @ W.T + np.diag(np.asarray(var, dtype=np.float64))
+    return float(nu @ np.linalg.solve(S, nu)), int(nu.size)
+
+
+def normalised_innovation(belief: GPBelief, cells: np.ndarray, W: np.ndarray, z: np.ndarray,
+                          var: np.ndarray) -> tuple[float, int]:
+    """NIS = nu^T S^-1 nu of a batch before its update, nu = z - H mu, S = H P H^T + R; and its dof (m).
+
+    Under a consistent model NIS is chi-square with m degrees of freedom (mean m).
+    """
+    return _nis(belief.mean[cells], belief.cov[np.ix_(cells, cells)], W, z, var)
+
+
+__all__ = ["GPBelief", "PersistentErrorBelief", "normalised_innovation", "value_scale", "matern32", "cell_centres", "prior_covariance"]

@@ -121,6 +121,15 @@ class SensorConfig:
     binning_altitude: float = 10.0  # [m] above this, measurements average binning x binning cells
     binning: int = 2  # [cells] block side of the coarse read-out
     binning_noise_exponent: float = 0.0  # [-] e in f^e: noise growth of a binned read-out
+    # the camera's persistent error: a per-cell error that every look at the same resolution factor
+    # repeats (the same texture misread the same way), carried by the belief as one extra state per
+    # cell and factor (:class:`~ipp_bench.belief.PersistentErrorBelief`); 0: none (v0, graph tasks)
+    persistent_var: float = 0.0  # [field units^2] per cell, full-resolution read-outs (f = 1), at t = 0.5
+    persistent_var_binned: float = 0.0  # [field units^2] per cell, binned read-outs (f = binning), at t = 0.5
+    persistent_corr: float = 0.0  # [-] correlation of a cell's persistent errors at the two factors
+    # camera errors shrink where a cell is empty or full (no plant margins to misread): with the
+    # persistent states, every variance is scaled by k + (1 - k) 4 t (1 - t), t the read-out's value
+    noise_floor: float = 1.0  # [-] k in (0, 1]: variance at t = 0 or 1 relative to t = 0.5; 1: same everywhere
 
     def __post_init__(self) -> None:
         v = _finite("sensor", "fov_deg", self.fov_deg)
@@ -131,9 +140,26 @@ class SensorConfig:
         _positive("sensor", "binning_altitude", self.binning_altitude)
         _integer("sensor", "binning", self.binning, 1)
         e = _finite("sensor", "binning_noise_exponent", self.binning_noise_exponent)
-        if not 0.0 <= e <= 6.0:
-            _fail("sensor", "binning_noise_exponent", self.binning_noise_exponent, "a number in [0, 6]")
-        _plain(self, "fov_deg", "noise_a", "noise_b", "binning_altitude", "binning", "binning_noise_exponent")
+        if not -6.0 <= e <= 6.0:
+            _fail("sensor", "binning_noise_exponent", self.binning_noise_exponent, "a number in [-6, 6]")
+        for name in ("persistent_var", "persistent_var_binned"):
+            if _finite("sensor", name, getattr(self, name)) < 0:
+                _fail("sensor", name, getattr(self, name), "a finite number >= 0 [field units^2]")
+        if not 0.0 <= _finite("sensor", "persistent_corr", self.persistent_corr) <= 1.0:
+            _fail("sensor", "persistent_corr", self.persistent_corr, "a number in [0, 1]")
+        if not 0.0 < _finite("sensor", "noise_floor", self.noise_floor) <= 1.0:
+            _fail("sensor", "noise_floor", self.noise_floor, "a number in (0, 1]")
+        _plain(self, "fov_deg", "noise_a", "noise_b", "binning_altitude", "binning", "binning_noise_exponent",
+               "persistent_var", "persistent_var_binned", "persistent_corr", "noise_floor")
+
+    def persistent(self, factor: int) -> float:
+        """Persistent per-cell error variance of read-outs at resolution factor ``factor`` (at t = 0.5)."""
+        return self.persistent_var_binned if factor > 1 else self.persistent_var
+
+    @property
+    def camera_error_states(self) -> bool:
+        """Whether the belief carries the camera's error model (:class:`~ipp_bench.belief.PersistentErrorBelief`)."""
+        return self.persistent_var > 0 or self.persistent_var_binned > 0 or self.noise_floor < 1.0
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from . import metrics as M
-from .belief import GPBelief
+from .belief import GPBelief, PersistentErrorBelief
 from .config import TIME_TOL_S, IPPConfig, cell_centre
 from .sensor import Observation, Sensor, stack
 
@@ -117,6 +117,10 @@ class Mission:
         self.rng = rng
         self.sensor = sensor if sensor is not None else Sensor(g, config.sensor)
         self.belief = belief if belief is not None else GPBelief.prior(g, config.gp)
+        #: the camera's error model, when the sensor has one (``SensorConfig.camera_error_states``):
+        #: updates go through it and it keeps ``belief`` (the field's marginal) current
+        self.camera_errors = (PersistentErrorBelief(self.belief, self.sensor.cfg)
+                              if self.sensor.cfg.camera_error_states else None)
         self.position = self.check_position(start_xyz)
         self.time_s = 0.0
         self.distance_m = 0.0
@@ -239,7 +243,9 @@ class Mission:
 
         Returns the number of scalar measurements fused.
         """
-        if observations:
+        if observations and self.camera_errors is not None:
+            self.camera_errors.update(observations, zs)
+        elif observations:
             cells, W, var = stack(observations)
             self.belief.update_local(cells, W, np.concatenate(zs), var)
         m = sum(o.m for o in observations)

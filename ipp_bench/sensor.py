@@ -7,6 +7,15 @@ is read at a coarser resolution: each measurement averages a ``binning x binning
 footprint's cells (1/4 on each for 2 x 2; edge blocks average the cells they have), and its noise
 variance is multiplied by ``f^e`` (f = ``binning``, e = ``binning_noise_exponent``: 0 in v0, 3 in
 v1 as in the lineage's code).
+
+A camera can also have a *persistent* error: a per-cell error e_c that every look at the same
+resolution factor repeats (``SensorConfig.persistent_var``, ``persistent_var_binned``: its variance
+s_f per cell). A read-out row w then has error w^T e + v, and its variance for one look is
+``var = f^e a (1 - exp(-b h)) + s_f sum(w^2)`` (what planners predict with); ``persistent`` is
+the second term, which :class:`~ipp_bench.belief.PersistentErrorBelief` carries as states instead of
+as noise, so that repeated looks are not taken as independent. :meth:`Sensor.measure` (the graph
+tasks' simulated read-out) draws independent noise of variance ``var`` at every look: only the
+MuJoCo camera repeats its error.
 """
 
 from __future__ import annotations
@@ -28,14 +37,19 @@ class Observation:
     Attributes:
         cells: (q,) flat indices of the observed cells, ascending.
         weights: (m, q) rows of H on those cells (each row sums to 1).
-        var: (m,) noise variance of each measurement.
+        var: (m,) noise variance of each measurement (one look: white + persistent).
         altitude: [m] altitude it was taken from.
+        factor: resolution factor f of the read-out (1, or the sensor's binning).
+        persistent: (m,) the part of ``var`` that every look at this factor repeats, s_f sum(w^2)
+            (None: no persistent error).
     """
 
     cells: np.ndarray
     weights: np.ndarray
     var: np.ndarray
     altitude: float
+    factor: int = 1
+    persistent: np.ndarray | None = None
 
     @property
     def m(self) -> int:
@@ -77,7 +91,7 @@ class Sensor:
         return 2.0 * float(altitude) * self._tan
 
     def noise_variance(self, altitude: float) -> float:
-        """Noise variance f^e a (1 - exp(-b h)) of one read-out at ``altitude`` [m].
+        """White noise variance f^e a (1 - exp(-b h)) of one read-out at ``altitude`` [m].
 
         f is the resolution factor (``binning`` when the read-out is binned, else 1).
         """
@@ -118,9 +132,16 @@ class Sensor:
                 self._cache.clear()
             self._cache[key] = layout
         cells, W = layout
+        factor = self.cfg.binning if binned else 1
         var = np.full(W.shape[0], self.noise_variance(h))
+        s = self.cfg.persistent(factor)
+        persistent = None
+        if s > 0:
+            persistent = s * np.einsum("ij,ij->i", W, W)
+            var += persistent
+            persistent.flags.writeable = False
         var.flags.writeable = False
-        return Observation(cells=cells, weights=W, var=var, altitude=h)
+        return Observation(cells=cells, weights=W, var=var, altitude=h, factor=factor, persistent=persistent)
 
     def _layout(self, r0: int, r1: int, c0: int, c1: int, binned: bool) -> tuple[np.ndarray, np.ndarray]:
         """Observed cells and the rows of H over them (cached: they depend on the ranges only)."""

@@ -145,3 +145,124 @@ def test_batched_trace_reductions_match_one_by_one():
             continue
         A = gain_factor(b.cov, *leg)[0]
         assert g == pytest.approx(np.sum(A[roi] ** 2), rel=1e-10)
+
+
+# -- the camera's persistent error as states (PersistentErrorBelief) ---------------------------------
+
+def _camera_model(floor=0.3, corr=0.7):
+    from ipp_bench.config import GridConfig, SensorConfig
+    from ipp_bench.sensor import Sensor
+
+    grid = GridConfig(6, 7, 2.5)
+    cfg = SensorConfig(noise_a=0.004, noise_b=0.1, binning_altitude=10.0, binning=2, binning_noise_exponent=-1.0,
+                       persistent_var=0.01, persistent_var_binned=0.03, persistent_corr=corr, noise_floor=floor)
+    return grid, cfg, Sensor(grid, cfg)
+
+
+def _phi(t, k):
+    t = min(max(t, 0.0), 1.0)
+    return k + (1 - k) * 4 * t * (1 - t)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_persistent_error_states_equal_the_batch_posterior(seed):
+    """Sequential augmented updates = the batch GP posterior of the field under the marginal
+    covariance of z = H x + E e + v, built here from the model's definition (not from the code)."""
+    from ipp_bench.belief import PersistentErrorBelief
+
+    rng = np.random.default_rng(seed)
+    grid, cfg, sensor = _camera_model()
+    field = GPBelief.from_grid((grid.rows, grid.cols), grid.resolution, 6.0, 0.2, 0.5, 1e-4)
+    mean0, K = field.mean.copy(), field.cov.copy()
+    model = PersistentErrorBelief(field, cfg)
+    n = field.n
+    spots = [(rng.uniform(2, 15), rng.uniform(2, 13), h) for h in (8.0, 14.0) for _ in range(2)]
+    rows = []  # (factor, cells, w, z, white)
+    for _ in range(3):  # batches; positions repeat, so cells are re-read at both factors
+        batch = [sensor.observe(spots[i]) for i in rng.choice(len(spots), 3)]
+        zs = [rng.uniform(0.0, 1.0, o.m) for o in batch]
+        model.update(batch, zs)
+        for o, z in zip(batch, zs):
+            white = cfg.noise_a * (1 - np.exp(-cfg.noise_b * o.altitude)) * (o.factor ** cfg.binning_noise_exponent
+                                                                              if o.factor > 1 else 1.0)
+            rows += [(o.factor, o.cells[w > 0], w[w > 0], zi, white) for w, zi in zip(o.weights, z)]
+    # the model's definition: per-cell error prior from the value of the row that first saw the cell
+    first = {}
+    for _, cells, _, zi, _ in rows:
+        for c in cells:
+            first.setdefault(int(c), zi)
+    m = len(rows)
+    H, E = np.zeros((m, n)), np.zeros((m, 2 * n))  # E: rows on (e_1, e_2)
+    z, R = np.zeros(m), np.zeros(m)
+    for i, (f, cells, w, zi, white) in enumerate(rows):
+        H[i, cells] = w
+        E[i, cells + (0 if f == 1 else n)] = w
+        z[i], R[i] = zi, white * _phi(zi, cfg.noise_floor)
+    Se = np.zeros((2 * n, 2 * n))
+    for c, t in first.items():
+        s1, s2 = cfg.persistent_var * _phi(t, cfg.noise_floor), cfg.persistent_var_binned * _phi(t, cfg.noise_floor)
+        Se[c, c], Se[n + c, n + c] = s1, s2
+        Se[c, n + c] = Se[n + c, c] = cfg.persistent_corr * np.sqrt(s1 * s2)
+    mean_b, cov_b = batch_posterior(mean0, K, H, z, E @ Se @ E.T + np.diag(R))
+    np.testing.assert_allclose(field.mean, mean_b, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(field.cov, cov_b, rtol=0, atol=1e-10)
+
+
+def test_without_persistent_error_the_camera_model_is_the_plain_update():
+    from ipp_bench.belief import PersistentErrorBelief
+    from ipp_bench.config import GridConfig, SensorConfig
+    from ipp_bench.sensor import Sensor, stack
+
+    grid = GridConfig(6, 7, 2.5)
+    sensor = Sensor(grid, SensorConfig(noise_a=0.004, noise_b=0.1))
+    a = GPBelief.from_grid((6, 7), 2.5)
+    b = a.copy()
+    model = PersistentErrorBelief(b, sensor.cfg)
+    obs = [sensor.observe((5.0, 6.0, 8.0)), sensor.observe((9.0, 6.0, 14.0))]
+    zs = [np.full(o.m, 0.3) for o in obs]
+    model.update(obs, zs)
+    cells, W, var = stack(obs)
+    a.update_local(cells, W, np.concatenate(zs), var)
+    np.testing.assert_allclose(b.mean, a.mean, atol=1e-12)
+    np.testing.assert_allclose(b.cov, a.cov, atol=1e-12)
+
+
+def test_nis_is_chi_square_with_the_error_states_and_not_without():
+    """Errors that repeat at every look: with them as states, the summed NIS of all updates is
+    chi-square (innovations are independent under the true model) and falls inside its two-sided
+    99.9 % interval; treating the same variance as fresh noise per look (the v1 model before) it
+    falls below it: the test can fail."""
+    from scipy.stats import chi2
+
+    from ipp_bench.belief import PersistentErrorBelief, normalised_innovation
+    from ipp_bench.sensor import stack
+
+    grid, cfg, sensor = _camera_model(floor=1.0, corr=0.7)
+    rng = np.random.default_rng(7)
+    spots = [(8.0, 7.0, 8.0), (10.0, 8.0, 8.0), (9.0, 7.5, 14.0)]
+    totals = {"states": [0.0, 0], "white": [0.0, 0]}
+    for _ in range(60):
+        field = GPBelief.from_grid((grid.rows, grid.cols), grid.resolution, 6.0, 0.2, 0.5, 1e-4)
+        x = rng.multivariate_normal(field.mean, field.cov)
+        n = field.n
+        s1, s2 = cfg.persistent_var, cfg.persistent_var_binned
+        c = cfg.persistent_corr * np.sqrt(s1 * s2)
+        e = rng.multivariate_normal([0, 0], [[s1, c], [c, s2]], size=n)  # (n, 2): per cell, both factors
+        model, plain = PersistentErrorBelief(field, cfg), field.copy()
+        for _ in range(6):  # the same spots again and again
+            obs = [sensor.observe(p) for p in spots]
+            zs = [o.weights @ (x[o.cells] + e[o.cells, 0 if o.factor == 1 else 1])
+                  + rng.normal(0, np.sqrt(o.var - o.persistent)) for o in obs]
+            nis, dof = model.normalised_innovation(obs, zs)
+            totals["states"][0] += nis
+            totals["states"][1] += dof
+            model.update(obs, zs)
+            cells, W, var = stack(obs)
+            nis, dof = normalised_innovation(plain, cells, W, np.concatenate(zs), var)
+            totals["white"][0] += nis
+            totals["white"][1] += dof
+            plain.update_local(cells, W, np.concatenate(zs), var)
+    nis, dof = totals["states"]
+    assert chi2.ppf(0.0005, dof) <= nis <= chi2.ppf(0.9995, dof), nis / dof
+    nis, dof = totals["white"]
+    assert nis < chi2.ppf(0.0005, dof), nis / dof  # repeated looks agree more than white noise would

@@ -1,34 +1,36 @@
-"""Calibration of the belief's sensor model against the deployment's camera pipeline.
+"""Calibration of the belief's camera model against the deployment's camera pipeline.
 
-``python -m ipp_bench.sim.calibrate --task ipp_bench/MuJoCoWeed15-v1 [--fields 12] [--write]``
+``python -m ipp_bench.sim.calibrate --task ipp_bench/MuJoCoWeed15-v1 [--fields 12] [--missions 4] [--write]``
 
-For calibration fields whose seeds are disjoint from every evaluation seed (fields are drawn from
-``SeedSequence((CALIBRATION_KEY, i))``; evaluation episodes draw theirs from ``env.reset(seed)``'s
-generator), the drone is placed over the map, and at each altitude hovers ``hover_s`` in the
-episode's wind under the estimated-state controller and reads the camera pipeline at every
-resolution factor f (1: per cell; the sensor's binning factor: 2 x 2 block means, read from the
-binned image); then it moves ``second_look_m`` and looks again. A read-out's error against the
-ground truth (e = H z_camera - H truth) is split three ways:
+Two measurements, both on calibration episodes disjoint from every evaluation episode.
 
-* common: the part of a cell's error that looks from *different* altitudes share (plant margins and
-  colours that the pipeline gets wrong whatever the altitude), E[e_h e_h'] over cells. It is white
-  per-cell variance of the camera-visible field, so it joins the GP prior's nugget;
-* altitude-specific persistent: what two looks at the same altitude and factor share beyond the
-  common part, E[e1 e2] - common * sum(w^2);
-* look-to-look: E[(e1 - e2)^2] / 2 (pixel noise, sampling phase, misregistration, gusts).
+1. Hovers (what the camera gets wrong, printed): for calibration fields drawn from
+   ``SeedSequence((CALIBRATION_KEY, i))``, the drone hovers ``hover_s`` in the episode's wind at
+   each altitude and reads the pipeline at every resolution factor f (1: per cell; the sensor's
+   binning factor: 2 x 2 block means, read from the binned image), then moves ``second_look_m`` and
+   looks again. Per altitude and factor: bias and MSE of a read-out's error e = H z - H truth, the
+   part two looks share (E[e1 e2], persistent) and the look-to-look part (E[(e1 - e2)^2] / 2); and
+   the per-cell error shared by looks from different altitudes. The look-to-look part fixes the
+   altitude rate b of the white noise.
 
-Measured, errors of two looks correlate at ~0.95: a Kalman filter that took the whole error as
-independent noise R would expect repeated looks to disagree far more than they do (NIS << 1), and
-one that took only the look-to-look part would be surprised by every change of altitude (NIS >> 1).
-R is fitted to look-to-look + altitude-specific by least squares on the logarithm with
+2. Calibration missions (the error model, written): full missions of random, coverage and greedy
+   (``CALIBRATION_PLANNERS``: re-reads at one altitude, sweeps, altitude changes over read cells)
+   on episodes ``CALIBRATION_EPISODES`` (seeds >= 2^31; the tasks' evaluation seeds are below). The
+   camera's error is mostly persistent (two looks at a cell correlate at 0.8-0.9, at either
+   factor), larger where a cell is part weed (plant margins) and near 0 on bare soil. The belief
+   carries it as states (:class:`~ipp_bench.belief.PersistentErrorBelief`): a per-cell error per
+   factor, correlated between the factors, with variance s_f phi(t), plus white noise
+   f^e a (1 - exp(-b h)) phi(t), phi(t) = k + (1 - k) 4 t (1 - t). k is the ratio of the mean
+   squared error of read-outs of about 0 to that of read-outs of about 0.5 (:func:`noise_floor`);
+   a, e, s_1, s_binned and the correlation are fitted by maximum likelihood of the Kalman
+   innovations of the calibration missions, replayed through the belief's own update
+   (:func:`fit_error_model`). The NIS per degree of freedom of each planner's calibration missions
+   under the fit is printed.
 
-    sigma^2(h, f) = f^e a (1 - exp(-b h))
-
-(a [field units^2], b [1/m], e [-]: the sensor model of benchmark v1 with the binning exponent free;
-e is kept in SensorConfig's range [0, 6]). ``--write`` puts a, b, e (e only when ``SensorConfig``
-has ``binning_noise_exponent``) and the nugget (field family's nugget, refitted as ``ipp-bench
-fit-prior`` does, plus the common part) into the task file with a comment naming the command.
-The measured and fitted values are printed.
+``--write`` puts a, b, e, the persistent constants, k and the nugget (the field family's own, refit
+as ``ipp-bench fit-prior`` does: the camera's error is no longer part of the field) into the task
+file with a comment naming the command. The greedy calibration missions plan with the constants
+the task file holds when the command runs; what they read does not depend on them.
 """
 
 from __future__ import annotations
@@ -43,7 +45,15 @@ from dataclasses import dataclass
 import numpy as np
 
 CALIBRATION_KEY = 0x1BB_CA1  # first word of every calibration field's SeedSequence
-E_RANGE = (0.0, 6.0)  # valid SensorConfig.binning_noise_exponent
+E_RANGE = (-6.0, 6.0)  # valid SensorConfig.binning_noise_exponent
+#: episode seeds [lo, hi) of the calibration missions: disjoint from every task's evaluation seeds [0, 2^31)
+CALIBRATION_EPISODES = (2**31, 2**32)
+#: planners whose missions the error model is fitted on: re-reads at one altitude (random), sweeps
+#: at 8 m (coverage), and changes of altitude over read cells (greedy)
+CALIBRATION_PLANNERS = ("random", "coverage", "greedy")
+#: the constants the maximum-likelihood fit sets, in the order of its parameter vector
+ERROR_MODEL_KEYS = ("noise_a", "binning_noise_exponent", "persistent_var", "persistent_var_binned",
+                    "persistent_corr", "noise_floor")
 
 
 @dataclass(frozen=True)
@@ -54,8 +64,9 @@ class CalibrationResult:
     bias: np.ndarray  # (n_alt, n_f) mean error [field units]
     persistent: np.ndarray  # (n_alt, n_f) E[e1 e2] of two looks at the same altitude [field units^2]
     look_to_look: np.ndarray  # (n_alt, n_f) E[(e1 - e2)^2] / 2 [field units^2]
-    rest: np.ndarray  # (n_alt, n_f) look-to-look + altitude-specific persistent variance: R's data [field units^2]
+    rest: np.ndarray  # (n_alt, n_f) look-to-look + altitude-specific persistent variance [field units^2]
     count: np.ndarray  # (n_alt, n_f) number of scalar read-out pairs
+    # f^e a (1 - exp(-b h)) fitted to ``rest``: the white R of v1 before the error states, kept to compare
     a: float
     b: float
     e: float
@@ -211,6 +222,124 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
                              ltl, rest, count, a, b, e, camera_nugget, e_free)
 
 
+def fly_calibration_missions(task_id: str, n_fields: int, planners=CALIBRATION_PLANNERS,
+                             verbose: bool = True, budget_s: float | None = None) -> list[tuple[list[tuple[list, list, float]], np.ndarray]]:
+    """Full missions of ``planners`` on ``n_fields`` calibration episodes: each mission's Kalman
+    batches ``(read-outs, values, time)`` as fused (:attr:`MuJoCoMission.update_log`) and its truth."""
+    import gymnasium as gym
+
+    import ipp_bench.envs  # noqa: F401  (registers the tasks)
+    from ipp_bench.planners.episode import fly_episode
+
+    budget = {} if budget_s is None else {"budget_s": float(budget_s)}
+    env = gym.make(task_id, episode_seeds=CALIBRATION_EPISODES, **budget).unwrapped
+    out = []
+    t0 = time.perf_counter()
+    try:
+        for planner in planners:
+            for i in range(n_fields):
+                fly_episode(env, planner, i)
+                out.append((list(env.mission.update_log), env.mission.truth.reshape(-1).copy()))
+            if verbose:
+                print(f"  {planner}: {n_fields} calibration missions flown ({time.perf_counter() - t0:.1f} s)",
+                      file=sys.stderr)
+    finally:
+        env.close()
+    return out
+
+
+def error_model_constants(x) -> dict[str, float]:
+    """The fit's parameter vector (logs and logits) as SensorConfig constants."""
+    la, e, ls1, ls2, lr, lk = (float(v) for v in x)
+    return {"noise_a": math.exp(la), "binning_noise_exponent": e, "persistent_var": math.exp(ls1),
+            "persistent_var_binned": math.exp(ls2), "persistent_corr": 1.0 / (1.0 + math.exp(-lr)),
+            "noise_floor": 1.0 / (1.0 + math.exp(-lk))}
+
+
+def _with_constants(observations, sensor) -> list:
+    """``observations`` with var / persistent of ``sensor`` (a SensorConfig), whatever they were flown with."""
+    out = []
+    for o in observations:
+        white = sensor.noise_a * (1.0 - math.exp(-sensor.noise_b * o.altitude))
+        if o.factor > 1:
+            white *= float(o.factor) ** sensor.binning_noise_exponent
+        persistent = sensor.persistent(o.factor) * np.einsum("ij,ij->i", o.weights, o.weights)
+        out.append(dataclasses.replace(o, var=white + persistent, persistent=persistent))
+    return out
+
+
+def replay(missions, config, sensor) -> list[tuple[float, float, int]]:
+    """Per mission: (negative log-likelihood, NIS, dof) of its Kalman batches under ``sensor``'s error model."""
+    from ipp_bench.belief import GPBelief, PersistentErrorBelief
+
+    prior = GPBelief.prior(config.grid, config.gp)
+    out = []
+    for batches, _ in missions:
+        model = PersistentErrorBelief(prior.copy(), sensor)
+        nll, nis, dof = 0.0, 0.0, 0
+        for observations, zs, _ in batches:
+            observations = _with_constants(observations, sensor)
+            nu, S = model.innovation(observations, zs)
+            L = np.linalg.cholesky(S)
+            a = np.linalg.solve(L, nu)
+            q = float(a @ a)
+            nll += 0.5 * q + float(np.log(np.diag(L)).sum())
+            nis, dof = nis + q, dof + nu.size
+            model.update(observations, zs)
+        out.append((nll, nis, dof))
+    return out
+
+
+def noise_floor(missions, empty: float = 0.02, half: tuple[float, float] = (0.4, 0.6)) -> float:
+    """k of :func:`~ipp_bench.belief.value_scale` by moments: the mean squared error of read-outs
+    whose value is <= ``empty`` over that of read-outs valued in ``half`` (errors against the truth)."""
+    sq, t = [], []
+    for batches, truth in missions:
+        for observations, zs, _ in batches:
+            for o, z in zip(observations, zs):
+                sq.append((z - o.weights @ truth[o.cells]) ** 2)
+                t.append(z)
+    sq, t = np.concatenate(sq), np.concatenate(t)
+    low, mid = sq[t <= empty], sq[(t >= half[0]) & (t <= half[1])]
+    if low.size == 0 or mid.size == 0:
+        return 1.0
+    return float(min(max(low.mean() / mid.mean(), 1e-3), 1.0))
+
+
+def fit_error_model(missions, config, noise_b: float, floor: float, max_evaluations: int = 300,
+                    verbose: bool = True) -> tuple[dict[str, float], float]:
+    """Maximum-likelihood fit of the camera's error model to calibration missions.
+
+    Fits ``ERROR_MODEL_KEYS`` but the noise floor (white noise scale a and binning exponent e,
+    persistent variances at both factors and their correlation) by Nelder-Mead on the innovations'
+    Gaussian log-likelihood, sum over batches of (nu^T S^-1 nu + log det S) / 2, with the altitude
+    rate b (from the hovers) and the floor k (:func:`noise_floor`) fixed: read-outs of bare soil
+    are exactly 0 again and again, and a free k would run to 0 to make their likelihood unbounded.
+    Returns (constants, negative log-likelihood).
+    """
+    from scipy.optimize import minimize
+
+    base = config.sensor
+    lk = math.log(floor / (1.0 - floor)) if floor < 1.0 else 30.0
+
+    def nll(x):
+        sensor = dataclasses.replace(base, noise_b=noise_b, **error_model_constants([*x, lk]))
+        try:
+            return sum(r[0] for r in replay(missions, config, sensor))
+        except np.linalg.LinAlgError:  # S not positive definite in floating point: not a model to pick
+            return math.inf
+
+    x0 = np.array([math.log(1e-3), -1.0, math.log(3e-3), math.log(1e-2), math.log(0.9 / 0.1)])
+    t0 = time.perf_counter()
+    res = minimize(nll, x0, method="Nelder-Mead", options={"maxfev": max_evaluations, "xatol": 0.02, "fatol": 0.5})
+    if verbose:
+        print(f"  error model: {res.nfev} likelihood evaluations ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
+    const = error_model_constants([*res.x, lk])
+    const["noise_floor"] = float(floor)
+    const["binning_noise_exponent"] = min(max(const["binning_noise_exponent"], E_RANGE[0]), E_RANGE[1])
+    return const, float(res.fun)
+
+
 def _set_keys(text: str, section: str, values: list[tuple[str, str, str]], command: str) -> str:
     """``text`` with ``key = value  # comment`` lines set in ``[section]`` (added if missing), after a comment line."""
     header = f"[{section}]"
@@ -233,21 +362,27 @@ def _set_keys(text: str, section: str, values: list[tuple[str, str, str]], comma
     return "\n".join(lines)
 
 
-def write_task_file(path: str, a: float, b: float, e: float | None, command: str,
-                    nugget: float | None = None) -> None:
+SENSOR_COMMENTS = {
+    "noise_a": "[field units^2] look-to-look (white) noise: f^e a (1 - exp(-b h)) at t = 0.5",
+    "noise_b": "[1/m]",
+    "binning_noise_exponent": "[-] variance factor f^e of a binned read-out's white noise",
+    "persistent_var": "[field units^2] per-cell error every full-resolution look repeats, at t = 0.5",
+    "persistent_var_binned": "[field units^2] per-cell error every binned look repeats, at t = 0.5",
+    "persistent_corr": "[-] correlation of a cell's persistent errors at the two factors",
+    "noise_floor": "[-] error variance of an empty or full cell relative to a half-covered one",
+}
+
+
+def write_task_file(path: str, sensor: dict[str, float], command: str, nugget: float | None = None) -> None:
     """Sets the fitted sensor constants (and the nugget) of a task file, with a comment naming the command."""
     with open(path, encoding="utf-8") as fh:
         text = fh.read()
-    sensor = [("noise_a", f"{a:.6g}",
-               "[field units^2] camera error not shared across altitudes: f^e a (1 - exp(-b h))"),
-              ("noise_b", f"{b:.6g}", "[1/m]")]
-    if e is not None:
-        sensor.append(("binning_noise_exponent", f"{round(e, 3) + 0.0:g}",
-                       "[-] variance factor f^e of a binned read-out"))
-    text = _set_keys(text, "config.sensor", sensor, command)
+    values = [(k, f"{round(v, 3) + 0.0:g}" if k == "binning_noise_exponent" else f"{v:.6g}", SENSOR_COMMENTS[k])
+              for k, v in sensor.items()]
+    text = _set_keys(text, "config.sensor", values, command)
     if nugget is not None:
-        text = _set_keys(text, "config.gp", [("nugget", f"{nugget:.6g}", "[field units^2] field family's nugget "
-                                               "+ the camera's persistent per-cell error variance")], command)
+        comment = "[field units^2] the field family's own nugget (the camera's errors: the sensor's states)"
+        text = _set_keys(text, "config.gp", [("nugget", f"{nugget:.6g}", comment)], command)
     with open(path, "w", encoding="utf-8") as fh:
         fh.write(text)
 
@@ -255,59 +390,63 @@ def write_task_file(path: str, a: float, b: float, e: float | None, command: str
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m ipp_bench.sim.calibrate", description=__doc__.split("\n\n")[0])
     p.add_argument("--task", default="ipp_bench/MuJoCoWeed15-v1")
-    p.add_argument("--fields", type=int, default=12, help="calibration fields (default 12)")
+    p.add_argument("--fields", type=int, default=12, help="calibration fields of the hovers (default 12)")
     p.add_argument("--positions", type=int, default=6, help="hover positions per field and altitude (default 6)")
     p.add_argument("--altitudes", default="6,8,10,12,14,16", help="altitudes [m], comma-separated")
     p.add_argument("--factors", default="1,2", help="resolution factors, comma-separated")
     p.add_argument("--hover-s", type=float, default=1.0, help="hover before each read-out [s] (default 1)")
+    p.add_argument("--missions", type=int, default=4,
+                   help=f"calibration missions per planner ({', '.join(CALIBRATION_PLANNERS)}) for the error "
+                        "model's likelihood (default 4)")
+    p.add_argument("--evaluations", type=int, default=300, help="likelihood evaluations at most (default 300)")
     p.add_argument("--field-nugget", type=float, default=None,
-                   help="the field family's own nugget, added to the camera's (default: refit as `ipp-bench "
-                        "fit-prior` does, so that the two commands compose in either order)")
+                   help="the field family's own nugget (default: refit as `ipp-bench fit-prior` does, so that the "
+                        "two commands compose in either order)")
     p.add_argument("--write", action="store_true", help="write the fitted constants into the task file")
     args = p.parse_args(argv)
-    if args.fields < 1 or args.positions < 1:
-        p.error("--fields and --positions must be >= 1")
+    if args.fields < 1 or args.positions < 1 or args.missions < 1 or args.evaluations < 1:
+        p.error("--fields, --positions, --missions and --evaluations must be >= 1")
     altitudes = [float(v) for v in args.altitudes.split(",")]
     factors = [int(v) for v in args.factors.split(",")]
     if any(h <= 0 for h in altitudes) or any(f < 1 for f in factors):
         p.error("--altitudes must be > 0 m and --factors >= 1")
+    from ipp_bench.envs.registry import task_spec
+
+    spec = task_spec(args.task)
     res = measure(args.task, altitudes, factors, args.fields, args.positions, args.hover_s)
     print(f"task {args.task}: {args.fields} calibration fields x {args.positions} positions, hover {args.hover_s} s")
-    print(f"{'h [m]':>6} {'f':>2} | {'rows':>6} {'bias':>8} {'mse':>9} {'persist':>9} {'look2look':>9} "
-          f"{'R data':>9} {'R fit':>9}")
+    print(f"{'h [m]':>6} {'f':>2} | {'rows':>6} {'bias':>8} {'mse':>9} {'persist':>9} {'look2look':>9}")
     for i, h in enumerate(res.altitudes):
         for j, f in enumerate(res.factors):
             print(f"{h:6.1f} {f:2d} | {res.count[i, j]:6d} {res.bias[i, j]:+8.4f} {res.mse[i, j]:9.5f} "
-                  f"{res.persistent[i, j]:9.5f} {res.look_to_look[i, j]:9.5f} {res.rest[i, j]:9.5f} "
-                  f"{float(res.model(h, f)):9.5f}")
-    print(f"per-cell error common to every altitude (joins the nugget): {res.camera_nugget:.5g}")
-    print(f"R = look-to-look + altitude-specific persistent, fitted: "
-          f"sigma^2(h, f) = f^{res.e:.3f} * {res.a:.5g} * (1 - exp(-{res.b:.4g} h)) "
-          f"(e in SensorConfig's range {E_RANGE}; without that range e = {res.e_free:.3f})")
+                  f"{res.persistent[i, j]:9.5f} {res.look_to_look[i, j]:9.5f}")
+    print(f"per-cell error shared by looks from different altitudes: {res.camera_nugget:.5g}")
+    _, b, _ = fit_noise_model(res.altitudes, res.factors, res.look_to_look, res.count)
+    print(f"altitude rate of the look-to-look noise: b = {b:.4g} 1/m")
+    # the error model: maximum likelihood over calibration missions, with the prior's field nugget
+    if args.field_nugget is None:
+        from ipp_bench import gp_fit
+
+        field_nugget = gp_fit.fit_prior(spec.config, gp_fit.DEFAULT_MAPS, gp_fit.FIT_SEED).nugget
+    else:
+        field_nugget = args.field_nugget
+    config = dataclasses.replace(spec.config, gp=dataclasses.replace(spec.config.gp, nugget=field_nugget))
+    missions = fly_calibration_missions(args.task, args.missions)
+    floor = noise_floor(missions)
+    const, nll = fit_error_model(missions, config, b, floor, args.evaluations)
+    const = {"noise_a": const.pop("noise_a"), "noise_b": b, **const}
+    print("error model (maximum likelihood over the calibration missions, -log L = "
+          f"{nll:.1f}): " + ", ".join(f"{k} = {v:.5g}" for k, v in const.items()))
+    sensor = dataclasses.replace(config.sensor, **const)
+    per = replay(missions, config, sensor)
+    for i, planner in enumerate(CALIBRATION_PLANNERS):
+        part = per[i * args.missions:(i + 1) * args.missions]
+        print(f"  NIS per dof on its calibration missions, {planner}: "
+              f"{sum(r[1] for r in part) / sum(r[2] for r in part):.3f}")
     if args.write:
-        from ipp_bench.config import SensorConfig
-        from ipp_bench.envs.registry import task_spec
-
-        from ipp_bench.config import GPConfig
-
-        has_e = any(fl.name == "binning_noise_exponent" for fl in dataclasses.fields(SensorConfig))
-        has_nugget = any(fl.name == "nugget" for fl in dataclasses.fields(GPConfig))
         command = ("python -m ipp_bench.sim.calibrate " + " ".join(argv if argv is not None else sys.argv[1:])).strip()
-        spec = task_spec(args.task)
-        path = spec.source
-        nugget = None
-        if has_nugget:
-            field_nugget = args.field_nugget
-            if field_nugget is None:
-                from ipp_bench import gp_fit
-
-                field_nugget = gp_fit.fit_prior(spec.config, gp_fit.DEFAULT_MAPS, gp_fit.FIT_SEED).nugget
-            nugget = field_nugget + res.camera_nugget
-            print(f"nugget = {field_nugget:.4g} (field family) + {res.camera_nugget:.4g} (camera, persistent)")
-        write_task_file(path, res.a, res.b, res.e if has_e else None, command, nugget)
-        print(f"wrote {path}" + ("" if has_e else "; binning exponent not written (no SensorConfig."
-                                                    "binning_noise_exponent here)")
-              + ("" if has_nugget else "; nugget not written (no GPConfig.nugget here)"))
+        write_task_file(spec.source, const, command, field_nugget)
+        print(f"wrote {spec.source} (nugget = {field_nugget:.4g}, the field family's own)")
     return 0
 
 

@@ -100,10 +100,12 @@ class MuJoCoIPPEnvV1(MuJoCoIPPEnv):
     a 320 x 320 camera (2.9 cm ground sampling distance at 8 m, 5.1 cm at 14 m, read out 2 x 2
     binned above 10 m) with lens blur, motion blur where the image moves, shot and read noise, and
     per-episode sun direction, exposure and white-balance errors; plant margins whose colours mix
-    with the soil's. The frame goes through OpenCV (HSV threshold, opening, homography onto the
+    with the soil's. The frame goes through OpenCV (HSV threshold, closing, homography onto the
     ground with the *estimated* pose, area resampling to cells) and the measurement z is what
-    that pipeline estimates: no synthetic noise is added. The belief's noise model R (sensor
-    constants of the task file) is fitted to that pipeline by ``python -m ipp_bench.sim.calibrate``.
+    that pipeline estimates: no synthetic noise is added. The camera's error is mostly persistent,
+    so the belief carries it as states (:class:`~ipp_bench.belief.PersistentErrorBelief`: a
+    per-cell error per resolution factor, plus white noise, both larger in part-weed cells); the
+    constants of the task file are fitted to the pipeline by ``python -m ipp_bench.sim.calibrate``.
     The drone flies through waypoints without stopping (velocity-continuous legs at up to 2 m/s,
     slowing only where a leg turns back), in a per-episode wind with gusts, controlled from an
     estimated state (GPS-like bias and noise, attitude noise).
@@ -120,8 +122,9 @@ class MuJoCoIPPEnvV1(MuJoCoIPPEnv):
     ``SimConfig(measurement="truth")`` replaces the camera's values by the ground truth).
 
     ## Version History
-    - v1: camera as the sensor (no synthetic noise, fitted R), realistic image formation, OpenCV
-      pipeline, continuous flight, wind, state estimation.
+    - v1: camera as the sensor (no synthetic noise; the camera's error model fitted to it, its
+      persistent part as belief states), realistic image formation, OpenCV pipeline, continuous
+      flight, wind, state estimation.
     - v0: initial release.
     """
 

@@ -30,6 +30,7 @@ from ipp_bench.sim.gl import mujoco
 
 from ipp_bench.sim.controller import CascadedController, ContinuousLeg, ControllerGains, Leg, continuous_durations
 from ipp_bench.sim.disturbance import DisturbanceConfig, Disturbances, perturb_quat, quat_to_mat
+from ipp_bench.sim.quadrotor import RotorSpeeds
 from ipp_bench.sim.scene import WeedScene
 
 FLIGHT_MODES = ("continuous", "stop")
@@ -84,6 +85,8 @@ class Flight:
         self._qp, self._qv = scene.qpos_adr, scene.qvel_adr
         self._act = scene.actuator_ids
         self._body = scene.body_id
+        #: rotor speeds of the "speed" rotor model (None: MuJoCo's thrust lag)
+        self.rotors = RotorSpeeds(scene.quad, self._m.opt.timestep) if scene.quad.rotor_model == "speed" else None
         self.disturbance_cfg = disturbances
         self.disturbance_seed = 0
         self.disturbances: Disturbances | None = None
@@ -138,6 +141,8 @@ class Flight:
     def reset(self, xyz, yaw: float = 0.0) -> None:
         """Drone at rest at ``xyz`` [m], time 0, the episode's disturbances from ``disturbance_seed``."""
         self.scene.reset(xyz, yaw)
+        if self.rotors is not None:
+            self.rotors.reset(self.scene.quad.hover_thrust)
         self.controller.yaw = float(yaw)
         self.steps = 0
         cfg = self.disturbance_cfg
@@ -190,7 +195,8 @@ class Flight:
                 wx, wy, _ = dist.wind
                 d.xfrc_applied[self._body, 0] = k * (wx - v[0])
                 d.xfrc_applied[self._body, 1] = k * (wy - v[1])
-        d.ctrl[self._act] = self.controller.thrusts(pos, vel, quat, v[3:], ref_pos, ref_vel, ref_acc)
+        thrusts = self.controller.thrusts(pos, vel, quat, v[3:], ref_pos, ref_vel, ref_acc)
+        d.ctrl[self._act] = thrusts if self.rotors is None else self.rotors.step(thrusts)
         mujoco.mj_step(self._m, d)
         self.steps += 1
 

@@ -15,8 +15,10 @@ Same world state, clock and metrics as the core mission, with these differences:
 * The camera is read every ``measurement_spacing`` metres actually travelled (carried over between
   legs) and on arrival; a read-out is the rendered frame through image formation, segmentation
   and projection with the estimated pose (:meth:`WeedWorld.read_camera`), never the ground truth.
-  The Kalman update is the core's (:meth:`Mission.assimilate`); every update's normalised
-  innovation squared is logged in ``nis_log`` (the belief's consistency check).
+  The Kalman update is the core's (:meth:`Mission.assimilate`; in v1 through the camera's error
+  model, :class:`~ipp_bench.belief.PersistentErrorBelief`); every update's normalised innovation
+  squared is logged in ``nis_log`` (the belief's consistency check), with the S of the model the
+  update uses.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from typing import Callable
 
 import numpy as np
 
-from ipp_bench.belief import GPBelief
+from ipp_bench.belief import GPBelief, normalised_innovation
 from ipp_bench.config import IPPConfig
 from ipp_bench.mission import FlownLeg, Mission, fits_budget
 from ipp_bench.sensor import Observation, Sensor, stack
@@ -56,6 +58,10 @@ class MuJoCoMission(Mission):
         self.step_hooks: list[Callable[["MuJoCoMission"], None]] = []
         #: (time [s], NIS, degrees of freedom) of every Kalman update
         self.nis_log: list[tuple[float, float, int]] = []
+        #: (read-outs, values, time [s]) of every Kalman update, as fused (calibration replays them)
+        self.update_log: list[tuple[list[Observation], list[np.ndarray], float]] = []
+        #: (cells, the camera's fraction of each, resolution factor) of every read-out fused
+        self.cell_log: list[tuple[np.ndarray, np.ndarray, int]] = []
         #: (time [s], true xyz, estimated xyz) of every camera read-out
         self.camera_log: list[tuple[float, np.ndarray, np.ndarray]] = []
         if self.continuous:
@@ -162,6 +168,8 @@ class MuJoCoMission(Mission):
         self.measurement_log.append((float(time_s), *map(float, self.flight.position)))
         reading = self.world.last_reading
         self.camera_log.append((float(time_s), reading.body_xyz, reading.estimated_xyz))
+        if obs is not None:
+            self.cell_log.append((obs.cells, reading.fraction[obs.cells], obs.factor))
         return obs, z, float(time_s)
 
     def _measure(self, points, times) -> int:
@@ -172,20 +180,11 @@ class MuJoCoMission(Mission):
     def assimilate(self, observations: list[Observation], zs: list[np.ndarray], time_s: float) -> int:
         """The core's Kalman update, with the normalised innovation squared of the batch logged first."""
         if observations:
+            self.update_log.append((list(observations), list(zs), float(time_s)))
+        if observations and self.camera_errors is not None:
+            self.nis_log.append((float(time_s), *self.camera_errors.normalised_innovation(observations, zs)))
+        elif observations:
             cells, W, var = stack(observations)
             z = np.concatenate(zs)
             self.nis_log.append((float(time_s), *normalised_innovation(self.belief, cells, W, z, var)))
         return super().assimilate(observations, zs, time_s)
-
-
-def normalised_innovation(belief: GPBelief, cells: np.ndarray, W: np.ndarray, z: np.ndarray,
-                          var: np.ndarray) -> tuple[float, int]:
-    """NIS = nu^T S^-1 nu of a batch before its update, nu = z - H mu, S = H P H^T + R; and its dof (m).
-
-    Under a consistent model NIS is chi-square with m degrees of freedom (mean m).
-    """
-    mu = belief.mean[cells]
-    P = belief.cov[np.ix_(cells, cells)]
-    nu = np.asarray(z, dtype=np.float64) - W @ mu
-    S = W @ P @ W.T + np.diag(np.asarray(var, dtype=np.float64))
-    return float(nu @ np.linalg.solve(S, nu)), int(nu.size)

@@ -26,7 +26,7 @@ from ipp_bench.sim.camera import CameraModel, EpisodeConditions, form_image, mot
 from ipp_bench.sim.controller import ControllerGains
 from ipp_bench.sim.disturbance import DisturbanceConfig
 from ipp_bench.sim.flight import Flight, FlightConfig
-from ipp_bench.sim.quadrotor import QuadrotorParams
+from ipp_bench.sim.quadrotor import ROTOR_MODELS, QuadrotorParams
 from ipp_bench.sim.render import SceneRenderer
 from ipp_bench.sim.scene import SceneConfig, WeedScene
 from ipp_bench.sim.texture import TexturePalette, weed_texture
@@ -53,6 +53,7 @@ class SimConfig:
     pipeline: str = "opencv"  # "opencv" (v1) | "v0" (the v0 per-pixel numpy code, ipp_bench.sim.vision_v0)
     pixel_binning: bool = True  # above the binning altitude the image is read out binned (v1)
     min_coverage: float = 0.5  # [-] share of a cell the image must cover for the cell to count as seen
+    rotor_model: str = "thrust"  # "thrust": lag on thrust; "speed": rotor speed state, thrust k_f omega^2
     scene: SceneConfig = SceneConfig()
     gains: ControllerGains = ControllerGains()
 
@@ -64,6 +65,8 @@ class SimConfig:
             raise ValueError(f"SimConfig.pipeline must be 'opencv' or 'v0', got {self.pipeline!r}")
         if self.measurement not in MEASUREMENTS:
             raise ValueError(f"SimConfig.measurement must be one of {MEASUREMENTS}, got {self.measurement!r}")
+        if self.rotor_model not in ROTOR_MODELS:
+            raise ValueError(f"SimConfig.rotor_model must be one of {ROTOR_MODELS}, got {self.rotor_model!r}")
         if not 0.0 < self.min_coverage <= 1.0:
             raise ValueError(f"SimConfig.min_coverage must be in (0, 1], got {self.min_coverage}")
 
@@ -114,7 +117,7 @@ class WeedWorld:
         # one OpenCV thread per process, as for BLAS (ipp_bench._threads): on 2 shared cores a second
         # thread only waits for the first; parallelism comes from worker processes
         cv2.setNumThreads(1)
-        self.quad = QuadrotorParams(camera_fovy_deg=sensor.fov_deg)
+        self.quad = QuadrotorParams(camera_fovy_deg=sensor.fov_deg, rotor_model=cfg.rotor_model)
         self.scene = WeedScene(grid.rows, grid.cols, grid.resolution, self.quad, cfg.scene)
         self.flight = Flight(self.scene, speed=speed, cfg=cfg.flight, gains=cfg.gains,
                              disturbances=cfg.disturbances)
@@ -282,4 +285,5 @@ def restrict(obs: Observation, seen: np.ndarray) -> Observation | None:
         return None
     W = obs.weights[rows]
     cols = np.any(W > 0, axis=0)
-    return Observation(cells=obs.cells[cols], weights=W[:, cols], var=obs.var[rows], altitude=obs.altitude)
+    return Observation(cells=obs.cells[cols], weights=W[:, cols], var=obs.var[rows], altitude=obs.altitude,
+                       factor=obs.factor, persistent=None if obs.persistent is None else obs.persistent[rows])

@@ -98,17 +98,20 @@ def test_nis_is_chi_square_under_a_consistent_model():
     assert total / dof == pytest.approx(1.0, abs=0.08)  # chi-square: mean 1 per dof, sd sqrt(2 / 2000)
 
 
-def test_belief_is_consistent_with_the_camera_on_short_missions():
-    """Pooled NIS per degree of freedom over short real missions lies in [0.7, 1.4]."""
+@pytest.mark.parametrize("planner", ["random", "coverage", "greedy"])
+def test_belief_is_consistent_with_the_camera_for_every_flight_pattern(planner):
+    """Per planner, NIS per degree of freedom pooled over short real missions lies in [0.7, 1.4]:
+    re-reads at one altitude (random), sweeps (coverage), altitude changes over read cells (greedy).
+    With the camera's error as white noise (the model before), greedy gave 0.51 here (random 0.79,
+    coverage 0.81); with the error states 0.88 (0.95, 0.89)."""
     e = gym.make(TASK, budget_s=60.0).unwrapped
     total, dof = 0.0, 0
-    for planner in ("random", "coverage"):
-        for seed in range(3):
-            fly_episode(e, planner, seed)
-            total += sum(x[1] for x in e.mission.nis_log)
-            dof += sum(x[2] for x in e.mission.nis_log)
+    for seed in range(3):
+        fly_episode(e, planner, seed)
+        total += sum(x[1] for x in e.mission.nis_log)
+        dof += sum(x[2] for x in e.mission.nis_log)
     e.close()
-    assert dof > 500
+    assert dof > 300
     assert 0.7 <= total / dof <= 1.4, total / dof
 
 
@@ -131,7 +134,8 @@ def test_calibration_command_on_a_tiny_budget(tmp_path):
     assert res.mse.shape == (2, 2) and np.all(res.count[:, 0] > 0) and res.count[:, 1].sum() > 0
     ok = res.count > 0
     assert np.all(res.look_to_look[ok] >= 0) and np.all(np.isfinite(res.mse[ok]))
-    assert res.a > 0 and res.b > 0 and 0.0 <= res.e <= 6.0 and res.camera_nugget >= 0
+    assert res.a > 0 and res.b > 0 and calibrate.E_RANGE[0] <= res.e <= calibrate.E_RANGE[1]
+    assert res.camera_nugget >= 0
     # the fit recovers known constants from exact data
     a, b, e = calibrate.fit_noise_model([6, 8, 10, 14], [1, 2],
                                         np.array([[f ** 1.5 * 0.01 * (1 - np.exp(-0.3 * h)) for f in (1, 2)]
@@ -140,15 +144,33 @@ def test_calibration_command_on_a_tiny_budget(tmp_path):
     # writing: a copy of the task file, loaded back by the registry's own loader
     path = tmp_path / "task.toml"
     shutil.copy(envs.task_spec(TASK).source, path)
-    calibrate.write_task_file(str(path), 0.00123, 0.25, 1.0, "python -m ipp_bench.sim.calibrate --fields 1", 0.004)
+    constants = {"noise_a": 0.00123, "noise_b": 0.25, "binning_noise_exponent": 1.0, "persistent_var": 0.002,
+                 "persistent_var_binned": 0.004, "persistent_corr": 0.9, "noise_floor": 0.05}
+    calibrate.write_task_file(str(path), constants, "python -m ipp_bench.sim.calibrate --fields 1", 0.004)
     spec = _load(path)
-    assert spec.config.sensor.noise_a == 0.00123 and spec.config.sensor.noise_b == 0.25
-    assert spec.config.sensor.binning_noise_exponent == 1.0 and spec.config.gp.nugget == 0.004
+    for k, v in constants.items():
+        assert getattr(spec.config.sensor, k) == v, k
+    assert spec.config.gp.nugget == 0.004
     assert spec.config.gp.length_scale == envs.task_spec(TASK).config.gp.length_scale  # the rest untouched
     text = path.read_text()
     assert text.count("# fitted by `python -m ipp_bench.sim.calibrate --fields 1`") == 2
-    calibrate.write_task_file(str(path), 0.002, 0.25, 1.0, "python -m ipp_bench.sim.calibrate --fields 2", 0.004)
+    calibrate.write_task_file(str(path), constants, "python -m ipp_bench.sim.calibrate --fields 2", 0.004)
     assert "--fields 1`" not in path.read_text()  # rewriting replaces, never piles up
+
+
+def test_error_model_fit_on_a_tiny_budget():
+    import dataclasses
+
+    cfg = envs.task_spec(TASK).config
+    missions = calibrate.fly_calibration_missions(TASK, 1, verbose=False, budget_s=20.0)
+    assert len(missions) == len(calibrate.CALIBRATION_PLANNERS) and all(m for m, _ in missions)
+    floor = calibrate.noise_floor(missions)
+    assert 0.0 < floor <= 1.0
+    const, nll = calibrate.fit_error_model(missions, cfg, 0.1, floor, max_evaluations=8, verbose=False)
+    assert set(const) == set(calibrate.ERROR_MODEL_KEYS) and np.isfinite(nll)
+    sensor = dataclasses.replace(cfg.sensor, noise_b=0.1, **const)  # SensorConfig accepts every fitted value
+    per = calibrate.replay(missions, cfg, sensor)
+    assert sum(r[0] for r in per) == pytest.approx(nll) and all(r[2] > 0 for r in per)
 
 
 def test_a_leg_longer_than_the_budget_in_flight_time_is_flown_until_the_budget_ends(env):

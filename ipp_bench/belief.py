@@ -350,4 +350,5 @@ def normalised_innovation(belief: GPBelief, cells: np.ndarray, W: np.ndarray, z:
     return _nis(belief.mean[cells], belief.cov[np.ix_(cells, cells)], W, z, var)
 
 
-__all__ = ["GPBelief", "PersistentErrorBelief", "normalised_innovation", "value_scale", "matern32", "cell_centres", "prior_covariance"]
+__all__ = ["GPBelief", "PersistentErrorBelief", "cell_centres", "matern32", "normalised_innovation", "prior_covariance",
+           "value_scale"]

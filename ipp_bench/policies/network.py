@@ -67,7 +67,7 @@ class NetConfig:
     ff_dim: int = 512  # [-] hidden width of the feed-forward sublayers
     tanh_clip: float = 10.0  # [-] C in C tanh(u) of the pointer logits
     rate_skip: bool = False  # add alpha x (the last node feature of each neighbour) to its logit
-    rate_skip_init: float = 20.0  # [-] alpha at initialisation (20: the second best at 0.9 x the best's rate is 7x less likely)
+    rate_skip_init: float = 20.0  # [-] alpha at start (20: a neighbour at 0.9 x the best rate is 7x less likely)
 
     def __post_init__(self) -> None:
         for name in ("node_dim", "pe_dim", "embed_dim", "n_heads", "ff_dim"):

@@ -70,14 +70,7 @@ class RolloutGreedy(MCTSPlanner):
             total += r
 
     def act(self, obs):
-        view = self.view
-        node = int(obs["current_node"][0])
-        self._roi = view.belief_roi()
-        self._unit = 1.0
-        root = _State(node, view.belief.cov, view.remaining_s, 0.0, view.neighbour_durations(node, view.position))
-        self._expand_info(root)
-        if root.order.size == 0:
-            raise ValueError("rollout: no affordable neighbour; the episode should have ended")
+        root = self._root(obs)
         best, best_value = int(root.order[0]), -np.inf
         for a in root.order[: self.settings.top]:
             child, r, _ = self._transition(root, int(a))

@@ -210,9 +210,9 @@ class MCTSPlanner(GraphPlanner):
         edge[4] += ret
         return ret
 
-    def act(self, obs):
+    def _root(self, obs) -> _State:
+        """The decision's root state, expanded, with the ROI fixed for the search (rewards in absolute units)."""
         view = self.view
-        cfg = self.settings
         node = int(obs["current_node"][0])
         self._roi = view.belief_roi()
         self._unit = 1.0
@@ -220,7 +220,12 @@ class MCTSPlanner(GraphPlanner):
         root = _State(node, view.belief.cov, view.remaining_s, 0.0, view.neighbour_durations(node, view.position))
         self._expand_info(root)
         if root.order.size == 0:
-            raise ValueError("mcts: no affordable neighbour; the episode should have ended")
+            raise ValueError(f"{self.name}: no affordable neighbour; the episode should have ended")
+        return root
+
+    def act(self, obs):
+        cfg = self.settings
+        root = self._root(obs)
         best_gain = root.gains[root.order].max()
         self._unit = best_gain if best_gain > 0 else 1.0
         root.gains = root.gains / self._unit

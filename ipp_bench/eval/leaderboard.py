@@ -165,6 +165,8 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
         skipped = len(jobs) - len(todo)
         log(f"leaderboard: {len(plan.tasks)} tasks x {len(plan.planners)} planners x {plan.episodes} episodes "
             f"= {len(jobs)} episodes; {skipped} already in {store.csv_path}, {len(todo)} to run")
+        if not todo:
+            log(f"all {len(jobs)} episodes are already complete in {store.csv_path}; nothing to run")
         executor = make_executor(backend, workers, address) if todo else None  # before anything is written
         store.begin()
         if executor is not None:

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from ..config import IPPConfig, field_owners
 from ..envs import tagged, task_config, task_spec
 from ..envs.registry import resolve_task as _resolve
 from ..planners import make_config, make_planner, parse_spec, planner_names
@@ -92,9 +93,131 @@ def report_times(task: str, env_overrides: dict[str, Any] | None = None) -> tupl
     return task_config(task, env_overrides).mission.report_times_in_budget
 
 
-def _config_digest(task: str, env_overrides: dict[str, Any]) -> str:
-    blob = json.dumps(task_config(task, env_overrides).to_dict(), sort_keys=True, default=str)
+#: config fields added since run.json began to record task configs (as 16-hex digests of the
+#: whole config, before the configs were recorded field by field), by the change that added them,
+#: oldest first. A digest of an older folder matches today's config without the fields added after
+#: it was written, when those hold their defaults (the values that reproduce the older behaviour).
+DIGEST_ERA_ADDED_FIELDS: tuple[tuple[str, ...], ...] = (
+    ("nugget", "binning_noise_exponent", "episode_seeds"),  # benchmark v1
+    ("persistent_var", "persistent_var_binned", "persistent_corr", "noise_floor"),  # camera-error states
+)
+
+
+def _json(value: Any) -> Any:
+    """``value`` as JSON reads it back (tuples become lists), so that a stored one compares equal."""
+    return json.loads(json.dumps(value, default=str))
+
+
+def task_config_record(task: str, env_overrides: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
+    """The configuration of ``task`` (with ``env_overrides``) as run.json records it: every field,
+    by section, as the config normalises it (JSON values)."""
+    return _json(task_config(task, env_overrides).to_dict())
+
+
+def _flat(record: dict[str, Any]) -> dict[str, Any]:
+    return {f"{section}.{name}": value for section, fields in record.items() if isinstance(fields, dict)
+            for name, value in fields.items()}
+
+
+def _config_digest(record: dict[str, Any]) -> str:
+    """The digest older run.json files recorded per task (sha256 of the sorted JSON, 16 hex)."""
+    blob = json.dumps(record, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _legacy_digest_matches(digest: str, record: dict[str, Any]) -> bool:
+    """Whether an older folder's digest is today's ``record`` without the fields added since (at
+    their defaults; :data:`DIGEST_ERA_ADDED_FIELDS`)."""
+    if digest == _config_digest(record):
+        return True
+    defaults = _flat(_json(IPPConfig().to_dict()))
+    owners = field_owners()
+    trimmed = json.loads(json.dumps(record))
+    for era in reversed(DIGEST_ERA_ADDED_FIELDS):
+        for name in era:
+            section = owners.get(name)
+            if section is None or name not in trimmed.get(section, {}):
+                continue
+            if trimmed[section][name] != defaults[f"{section}.{name}"]:
+                return False  # a later field away from its default: the older code could not have run it
+            del trimmed[section][name]
+        if digest == _config_digest(trimmed):
+            return True
+    return False
+
+
+def config_differences(stored: Any, current: dict[str, Any]) -> list[str]:
+    """What differs between a stored task config record and today's, one ``field: there X, now Y``
+    each; empty when they are the same arguments.
+
+    Values compare as numbers (``30`` and ``30.0`` are the same budget); a field the stored record
+    lacks is the same when today's value is its default (a field added since, at the value that
+    keeps the older behaviour). ``stored`` may be an older folder's digest string
+    (:func:`_legacy_digest_matches`).
+    """
+    if isinstance(stored, str):
+        if _legacy_digest_matches(stored, current):
+            return []
+        return [f"config digest {stored}, which today's config does not give (a changed task file or "
+                "default; that folder recorded no field-by-field config to name it)"]
+    if not isinstance(stored, dict):
+        return [f"an unreadable config record {stored!r}"]
+    there, now = _flat(stored), _flat(current)
+    defaults = _flat(_json(IPPConfig().to_dict()))
+    out = []
+    for key in sorted(set(there) | set(now)):
+        if key not in there:
+            if key in defaults and now[key] == defaults[key]:
+                continue  # added since, at its default
+            out.append(f"{key}: not recorded there (older code: the default {defaults.get(key)!r}), now {now[key]!r}")
+        elif key not in now:
+            out.append(f"{key}: there {there[key]!r}, a field today's config no longer has")
+        elif there[key] != now[key]:
+            out.append(f"{key}: there {there[key]!r}, now {now[key]!r}")
+    return out
+
+
+def fingerprint_differences(stored: dict[str, Any], current: dict[str, Any]) -> dict[str, list[str]]:
+    """Per differing fingerprint key, lines saying how (empty dict: the same arguments).
+
+    ``task_configs`` compare field by field (:func:`config_differences`); every other key by
+    value, numbers as numbers.
+    """
+    out: dict[str, list[str]] = {}
+    for key in sorted(set(stored) | set(current)):
+        there, now = stored.get(key), current.get(key)
+        if key == "task_configs" and isinstance(there, dict) and isinstance(now, dict):
+            lines = []
+            for task in sorted(set(there) | set(now)):
+                if task not in there or task not in now:
+                    lines.append(f"{task}: {'not there' if task not in there else 'not now'}")
+                    continue
+                lines += [f"{task} {line}" for line in config_differences(there[task], now[task])]
+            if lines:
+                out[key] = lines
+        elif there != now:
+            out[key] = [f"there {_short(there)}, now {_short(now)}"]
+    return out
+
+
+def _short(value: Any, limit: int = 200) -> str:
+    text = json.dumps(value, sort_keys=True, default=str)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def normalised_overrides(tasks: Sequence[str], env_overrides: dict[str, Any]) -> dict[str, Any]:
+    """``env_overrides`` as the config holds them (``budget_s=30`` and ``30.0`` alike), JSON values."""
+    if not env_overrides or not tasks:
+        return _json(dict(sorted(env_overrides.items())))
+    config = task_config(tasks[0], env_overrides)
+    owners = field_owners()
+    out = {}
+    for k in sorted(env_overrides):
+        if k in owners:
+            out[k] = getattr(getattr(config, owners[k]), k)
+        else:  # a whole section given as a dict
+            out[k] = env_overrides[k]
+    return _json(out)
 
 
 def planner_fingerprint(planner: Any) -> dict[str, str]:
@@ -170,8 +293,8 @@ class Plan:
             "tasks": sorted(self.tasks),
             "planners": sorted(self.planners),
             "seed": self.seed,
-            "env_overrides": {k: self.env_overrides[k] for k in sorted(self.env_overrides)},
-            "task_configs": {t: _config_digest(t, self.env_overrides) for t in sorted(self.tasks)},
+            "env_overrides": normalised_overrides(self.tasks, self.env_overrides),
+            "task_configs": {t: task_config_record(t, self.env_overrides) for t in sorted(self.tasks)},
             "planner_fingerprints": {p: self.planner_fingerprints[p] for p in sorted(self.planner_fingerprints)},
             "seed_scheme": SEED_SCHEME,
         }, default=str))

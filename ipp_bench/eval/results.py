@@ -36,7 +36,7 @@ from typing import Any
 from .. import __version__
 from ..data import check_output_dir
 from ..mission import REPORT_KEYS
-from .plan import Plan, report_times
+from .plan import Plan, fingerprint_differences, report_times
 
 RESULTS_CSV = "results.csv"
 RUN_JSON = "run.json"
@@ -216,11 +216,11 @@ class ResultsStore:
             self._refuse_unfingerprinted_rows(fingerprint.get("planner_fingerprints") or {})
         for k in added:
             stored[k] = fingerprint[k]
-        differing = [k for k in sorted(set(stored) | set(fingerprint)) if stored.get(k) != fingerprint.get(k)]
-        if differing:
-            lines = [f"  {k}: there {_short(stored.get(k))}, now {_short(fingerprint.get(k))}" for k in differing]
+        differences = fingerprint_differences(stored, fingerprint)
+        if differences:
+            lines = [f"  {k}: {line}" for k, ls in differences.items() for line in ls]
             raise ResultsMismatchError(
-                f"{self.dir} holds results made with different arguments ({', '.join(differing)}):\n"
+                f"{self.dir} holds results made with different arguments ({', '.join(differences)}):\n"
                 + "\n".join(lines)
                 + f"\nTo resume that run, repeat its arguments ({RUN_JSON} has them); for these arguments "
                 f"pass a new --out DIR (or delete {self.dir}). Results of different arguments are never mixed.")
@@ -230,7 +230,13 @@ class ResultsStore:
                 f"would drop some: pass --episodes {stored_episodes} or more (more episodes extend the folder)")
         if added:
             self.notes.append(f"{RUN_JSON} predates {', '.join(added)}; recorded them now")
-        if added or self.plan.episodes != stored_episodes or "episodes" in stored_meta.get("fingerprint", {}):
+        # the same arguments, recorded another way (digests of the task configs, fields added since
+        # at their defaults, 30 for 30.0): record them as today's code does
+        rerecord = stored != fingerprint
+        if rerecord and not added:
+            self.notes.append(f"{RUN_JSON} records the same arguments in an older form; rewrote it in today's")
+        if (rerecord or self.plan.episodes != stored_episodes
+                or "episodes" in stored_meta.get("fingerprint", {})):
             if self.plan.episodes != stored_episodes:
                 self.notes.append(f"extending {self.dir} from {stored_episodes} to {self.plan.episodes} episodes "
                                   "per task and planner (the first seeds are the same)")
@@ -324,11 +330,6 @@ class ResultsStore:
             except ValueError:
                 pass
         return self.plan.quick
-
-
-def _short(value: Any, limit: int = 200) -> str:
-    text = json.dumps(value, sort_keys=True, default=str)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _atomic_write(path: Path, text: str) -> None:

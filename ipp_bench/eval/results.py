@@ -235,7 +235,7 @@ class ResultsStore:
         rerecord = stored != fingerprint
         if rerecord and not added:
             self.notes.append(f"{RUN_JSON} records the same arguments in an older form; rewrote it in today's")
-        if (rerecord or self.plan.episodes != stored_episodes
+        if (added or rerecord or self.plan.episodes != stored_episodes
                 or "episodes" in stored_meta.get("fingerprint", {})):
             if self.plan.episodes != stored_episodes:
                 self.notes.append(f"extending {self.dir} from {stored_episodes} to {self.plan.episodes} episodes "

@@ -31,6 +31,7 @@ from collections.abc import Sequence
 from . import __version__
 
 EXIT_USAGE = 2
+EXIT_FAILED = 1  # an episode failed part-way (finished ones are kept)
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
 
 # subcommand -> (module, add_arguments, run, extra)
@@ -214,7 +215,14 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from .data import check_output_dir
     from .envs import parse_overrides
     from .eval.executors import ExecutorError, check_executor_args, default_backend
-    from .eval.leaderboard import Interrupted, ResultsMismatchError, describe_quick, make_plan, run_leaderboard
+    from .eval.leaderboard import (
+        EpisodeFailed,
+        Interrupted,
+        ResultsMismatchError,
+        describe_quick,
+        make_plan,
+        run_leaderboard,
+    )
     from .planners import split_specs
 
     if args.quick:
@@ -239,6 +247,9 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     except Interrupted as err:
         print(f"ipp-bench: {err}", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except EpisodeFailed as err:
+        print(f"ipp-bench: error: {err}", file=sys.stderr)
+        return EXIT_FAILED
     except (ResultsMismatchError, ExecutorError, ImportError, ValueError) as err:
         return _error(str(err))
     finally:

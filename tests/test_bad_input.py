@@ -299,3 +299,48 @@ def test_ctrl_c_during_evaluate_is_one_line_and_exit_130(capsys, monkeypatch):
     monkeypatch.setattr(runner, "run_episode", interrupted)
     rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", *TINY], capsys)
     assert rc == 130 and err.strip() == "ipp-bench: interrupted"
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc (Linux)")
+@pytest.mark.timeout(240)
+def test_a_worker_killed_by_the_os_stops_the_run_with_one_line_and_the_resume_command(tmp_path):
+    """SIGKILL on one pool worker (as the OOM killer does): one line naming an episode, exit 1,
+    the resume command, no process left; the rerun completes."""
+    out = tmp_path / "lb"
+    argv = [sys.executable, "-m", "ipp_bench.cli", "leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "greedy",
+            "--episodes", "8", "--backend", "process", "--workers", "2", "--no-progress", "--out", str(out),
+            "--env", "budget_s=60", "--env", "report_times=[30,60]"]
+    proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:  # the workers: children of the forkserver, grandchildren of the run
+            workers = [p for p in _descendants_alive(proc.pid) if p != proc.pid and _ppid(p) != proc.pid]
+            if len(workers) >= 2 and (out / "run.json").exists():
+                break
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.2)
+        os.kill(workers[0], signal.SIGKILL)
+        stdout, stderr = proc.communicate(timeout=90)
+        deadline = time.monotonic() + 30
+        while _descendants_alive(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert _descendants_alive(proc.pid) == [], "a worker outlived the leaderboard"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 1, (stdout, stderr)
+    assert "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert "episode Grid15Eval-v1 greedy seed" in stderr and "worker process died" in stderr
+    assert "rerun the same command to resume: ipp-bench leaderboard --tasks Grid15Eval-v1" in stderr
+    rerun = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=180)
+    assert rerun.returncode == 0, rerun.stderr[-2000:]
+    assert len((out / "results.csv").read_text().splitlines()) == 1 + 8 * 2
+
+
+def _ppid(pid: int) -> int:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return -1
+    return int(stat[stat.rindex(")") + 2:].split()[1])

@@ -24,6 +24,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import TypeVar
 
 from .._threads import available_cpus, limit_blas_threads
@@ -36,6 +37,27 @@ R = TypeVar("R")
 
 class ExecutorError(RuntimeError):
     """A backend that cannot start (e.g. no Ray cluster at the address); the message says how to fix it."""
+
+
+class JobFailed(RuntimeError):
+    """One job failed: it raised (``reason``: its one-line message) or its worker process died.
+
+    Every backend raises this, and only this, for a job that gives no result, so the caller keeps
+    what finished and names the job, whatever ran it.
+    """
+
+    def __init__(self, job, reason: str):
+        super().__init__(reason)
+        self.job, self.reason = job, reason
+
+
+class JobError(RuntimeError):
+    """What a job function raises for a failure it has already put in one line (the executors
+    pass its message on as the :class:`JobFailed` reason, unchanged)."""
+
+
+#: the reason given for a job whose worker process vanished (SIGKILL, the kernel's OOM killer)
+WORKER_DIED = "its worker process died (killed by a signal, e.g. by the OS when memory ran out)"
 
 
 WATCH_PERIOD_S = 0.5  # [s] how often a pool worker checks that the run's process is alive
@@ -85,7 +107,11 @@ class SerialExecutor:
     def imap_unordered(self, fn: Callable[[J], R], jobs: Sequence[J]) -> Iterator[tuple[J, R]]:
         init_worker()
         for job in jobs:
-            yield job, fn(job)
+            try:
+                result = fn(job)
+            except Exception as err:
+                raise JobFailed(job, _reason(err)) from None
+            yield job, result
 
     def close(self, abort: bool = False) -> None:
         pass
@@ -118,7 +144,13 @@ class ProcessExecutor:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
                     job = pending.pop(fut)
-                    yield job, fut.result()
+                    try:
+                        result = fut.result()
+                    except BrokenProcessPool:
+                        raise JobFailed(job, WORKER_DIED) from None
+                    except Exception as err:
+                        raise JobFailed(job, _reason(err)) from None
+                    yield job, result
         finally:
             for fut in pending:
                 fut.cancel()
@@ -189,7 +221,13 @@ class RayExecutor:
                 done, _ = ray.wait(list(refs), num_returns=1)
                 for ref in done:
                     job = refs.pop(ref)
-                    yield job, ray.get(ref)
+                    try:
+                        result = ray.get(ref)
+                    except ray.exceptions.RayTaskError as err:  # the job raised: its own exception
+                        raise JobFailed(job, _reason(getattr(err, "cause", None) or err)) from None
+                    except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError) as err:
+                        raise JobFailed(job, f"{WORKER_DIED} ({type(err).__name__})") from None
+                    yield job, result
         finally:
             for ref in refs:
                 ray.cancel(ref, force=True)
@@ -201,6 +239,14 @@ class RayExecutor:
 
     def describe(self) -> str:
         return f"Ray tasks on {self.where}"
+
+
+def _reason(err: BaseException) -> str:
+    """One line for a job's exception: its type and first line of message."""
+    if isinstance(err, JobError):
+        return str(err)
+    text = str(err).strip().splitlines()
+    return f"{type(err).__name__}: {text[0]}" if text else type(err).__name__
 
 
 def check_executor_args(backend: str, workers: int | None = None, address: str | None = None) -> None:
@@ -246,4 +292,4 @@ def make_executor(backend: str, workers: int | None = None, address: str | None 
     return RayExecutor(workers, address)
 
 
-__all__ = ["BACKENDS", "ExecutorError", "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args", "default_backend", "make_executor"]
+__all__ = ["BACKENDS", "WORKER_DIED", "ExecutorError", "JobError", "JobFailed", "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args", "default_backend", "make_executor"]

@@ -230,14 +230,15 @@ def planner_fingerprint(planner: Any) -> dict[str, str]:
 def default_planners(log: Callable[[str], None] = print) -> list[str]:
     """Every registered planner that can be built here; the others are left out with a note.
 
-    A planner whose module, extra (torch, pycma) or checkpoint is missing cannot run; that is fine
-    for the default list (a printed note says why), never for a planner asked for by name.
+    A planner whose module, extra (torch, pycma) or checkpoint is missing, or a plugin that fails
+    to build (no ``Config``, an exception in its constructor), cannot run; that is fine for the
+    default list (a printed note says why), never for a planner asked for by name.
     """
     names = []
     for name in planner_names():
         try:
             make_planner(name)
-        except (ImportError, OSError, ValueError) as err:
+        except Exception as err:  # any broken planner (a plugin's bug too) is left out, with its reason
             log(f"note: leaving planner {name!r} out of the default list: {type(err).__name__}: {err}")
             continue
         names.append(name)

@@ -40,7 +40,6 @@ from .plan import Plan, fingerprint_differences, report_times
 
 RESULTS_CSV = "results.csv"
 RUN_JSON = "run.json"
-LOCK_FILE = ".lock"
 FORMAT_VERSION = 1
 #: fingerprint keys that older folders lack: filled in (with a note) instead of refusing the folder
 ADDED_FINGERPRINT_KEYS = ("planner_fingerprints",)
@@ -146,8 +145,11 @@ class ResultsStore:
             check_output_dir(self.dir)
         except ValueError as err:
             raise ResultsMismatchError(str(err)) from None
-        self._created = not self.dir.exists()
-        self.dir.mkdir(parents=True, exist_ok=True)
+        try:  # atomic: of two runs starting at once on a new folder, exactly one created it
+            self.dir.mkdir(parents=True)
+            self._created = True
+        except FileExistsError:
+            self._created = False
         try:
             self._lock()
             self._check_fingerprint()
@@ -161,18 +163,28 @@ class ResultsStore:
         self._close(failed=exc_type is not None)
 
     def _close(self, failed: bool) -> None:
-        if self._lock_fd is not None:
-            os.close(self._lock_fd)  # releases the flock
-            self._lock_fd = None
+        """Unlock; a run that failed before writing anything removes the folder it created, but
+        only while it holds the lock: a run that lost the lock touches nothing (the folder is the
+        winner's now, even if this run made it)."""
+        if self._lock_fd is None:
+            return
         if failed and self._created and not self.run_json.exists():  # leave nothing behind
             shutil.rmtree(self.dir, ignore_errors=True)
+        os.close(self._lock_fd)  # releases the flock
+        self._lock_fd = None
 
     def _lock(self) -> None:
+        """Lock the folder itself (flock on its descriptor): no lock file is created or left."""
         try:
             import fcntl
         except ImportError:  # pragma: no cover (Windows): no lock
             return
-        fd = os.open(self.dir / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(self.dir, os.O_RDONLY)
+        except FileNotFoundError:  # a run that made it a moment ago failed and removed it
+            raise ResultsMismatchError(
+                f"{self.dir} was removed by another leaderboard run that started at the same moment and "
+                "failed; run the command again") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:

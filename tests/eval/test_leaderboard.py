@@ -251,3 +251,67 @@ def test_ray_gives_the_same_results(reference_run, tmp_path):
         assert_same_results(results(out), results(reference_run[0]))
     finally:
         ray.shutdown()
+
+
+def test_a_run_that_loses_the_lock_never_touches_the_winners_folder(tmp_path, monkeypatch):
+    """Two runs start at once on a new folder: the one that created it can lose the lock to the
+    other (which found it existing); its cleanup must not delete the winner's folder."""
+    from ipp_bench.eval import results as results_module
+
+    out = tmp_path / "new"
+    plan = tiny_plan()
+    winner = lb.ResultsStore(out, plan)
+    real_lock = results_module.ResultsStore._lock
+
+    def lock_after_the_winner(self):
+        if self is not winner:
+            winner.__enter__()  # the other run locks between this one's mkdir and its lock
+        real_lock(self)
+
+    monkeypatch.setattr(results_module.ResultsStore, "_lock", lock_after_the_winner)
+    loser = lb.ResultsStore(out, plan)
+    with pytest.raises(ResultsMismatchError, match="in use by another leaderboard run"):
+        loser.__enter__()
+    assert loser._created and winner._created is False  # the loser made the folder
+    assert out.is_dir()
+    monkeypatch.setattr(results_module.ResultsStore, "_lock", real_lock)
+    winner.begin()  # the winner still writes into its folder
+    winner.__exit__(None, None, None)
+    assert (out / "run.json").exists() and (out / RESULTS_CSV).exists()
+    assert sorted(p.name for p in out.iterdir()) == ["results.csv", "run.json"]  # no lock file left
+
+
+def test_a_planner_that_raises_stops_the_run_naming_the_episode_and_keeps_the_rest(tmp_path, monkeypatch):
+    from lb_helpers import BoomPlanner
+
+    from ipp_bench import planners
+
+    monkeypatch.setitem(planners.REGISTRY, "boom", "lb_helpers:BoomPlanner")
+    plan = tiny_plan(tasks=TASKS[:1], planners=["random", "boom"])
+    monkeypatch.setattr(BoomPlanner, "FAIL_SEED", plan.seeds[1])
+    out = tmp_path / "boom"
+    with pytest.raises(lb.EpisodeFailed) as err:
+        run_tiny(out, plan, command="ipp-bench leaderboard ...")
+    message = str(err.value)
+    assert f"episode Grid15Eval-v0 boom seed {plan.seeds[1]} failed: RuntimeError: boom in act" in message
+    assert "lb_helpers.py" in message and "in act" in message  # where it was raised
+    assert "3 of 4 episodes kept" in message and message.endswith("resume: ipp-bench leaderboard ...")
+    assert "\n" not in message
+    assert len(results(out)) == 3 * len(TINY_ENV["report_times"])  # the finished episodes are on disk
+    monkeypatch.setattr(BoomPlanner, "FAIL_SEED", None)  # fixed: the rerun runs the failed one only
+    assert run_tiny(out, plan).ran == 1
+
+
+def test_a_failing_episode_in_a_worker_process_is_one_line_too(tmp_path):
+    """An episode that raises inside a pool worker (its checkpoint vanished after the run was
+    planned) ends the run with the same one line."""
+    pytest.importorskip("torch")
+    from ipp_bench.policies.checkpoint import SHIPPED_CHECKPOINT
+
+    ckpt = tmp_path / "net.pt"
+    ckpt.write_bytes(SHIPPED_CHECKPOINT.read_bytes() if hasattr(SHIPPED_CHECKPOINT, "read_bytes")
+                     else open(SHIPPED_CHECKPOINT, "rb").read())
+    plan = tiny_plan(tasks=TASKS[:1], planners=["random", f"attention:checkpoint={ckpt}"], episodes=1)
+    ckpt.unlink()
+    with pytest.raises(lb.EpisodeFailed, match=r"episode Grid15Eval-v0 attention:checkpoint=\S+ seed \d+ failed: \w+"):
+        run_tiny(tmp_path / "lb", plan, backend="process", workers=2)

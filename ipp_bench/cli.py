@@ -178,15 +178,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if args.seed < 0:
             raise ValueError(f"--seed {args.seed} is invalid: expected an integer >= 0")
         if args.render:
+            from .eval.figure import require_figure
+
             check_output_file(args.render, "--render", suffix=".png")
+            require_figure()  # before the episode, not after it
         spec = canonical_spec(args.planner)
-        make_planner(spec)  # a planner that cannot be built here fails now, with its message
+        planner = make_planner(spec)  # a planner that cannot be built here fails now, with its message
+        from .eval.runner import make_env, run_episode
+        from .planners.episode import start_episode
+
+        task_env = make_env(task, **env)
+        start_episode(task_env, planner, args.seed)  # what the episode's start refuses, refused now
     except (ValueError, ImportError) as err:
         return _error(str(err))
-    from .eval.runner import run_episode
 
     try:
-        result = run_episode(task, spec, args.seed, render_path=args.render, **env)
+        result = run_episode(task, spec, args.seed, env=task_env, render_path=args.render)
     except ValueError as err:  # e.g. a budget that pays for no first move
         return _error(str(err))
     if args.json:

@@ -344,3 +344,47 @@ def _ppid(pid: int) -> int:
     except OSError:
         return -1
     return int(stat[stat.rindex(")") + 2:].split()[1])
+
+
+# -- errors before work (issue 19) ----------------------------------------------------------------
+def _run_cli(argv, block=(), timeout=120):
+    """``ipp-bench ARGV`` in a subprocess, with the modules ``block`` made unimportable (as on an
+    install without their extra); (exit status, stdout, stderr)."""
+    code = ("import sys\n" + "".join(f"sys.modules[{m!r}] = None\n" for m in block)
+            + "from ipp_bench.cli import main\nsys.exit(main(sys.argv[1:]))\n")
+    proc = subprocess.run([sys.executable, "-c", code, *argv], cwd=REPO, capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, "MUJOCO_GL": "egl"})
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def test_render_without_matplotlib_is_refused_before_the_episode(tmp_path):
+    png = tmp_path / "x.png"
+    rc, out, err = _run_cli(["evaluate", "--task", "Grid15Eval-v1", "--planner", "greedy", "--render", str(png)],
+                            block=("matplotlib",))
+    assert rc == 2 and err.strip() == 'ipp-bench: error: the --render figure needs matplotlib: pip install "ipp-bench[eval]"'
+    assert "decisions" not in out and not png.exists()
+
+
+def test_a_deployment_task_without_the_sim_extra_names_the_extra(tmp_path):
+    for argv in (["evaluate", "--task", "MuJoCoWeed15-v1", "--planner", "random"],
+                 ["leaderboard", "--tasks", "MuJoCoWeed15-v1", "--planners", "random", "--episodes", "1",
+                  "--out", str(tmp_path / "lb")]):
+        rc, _, err = _run_cli(argv, block=("mujoco", "cv2"))
+        assert rc == 2 and 'pip install "ipp-bench[sim]"' in err and "Traceback" not in err, err
+        assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "lb").exists()
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--planners", "greedy", "--env", "budget_s=1", "--env", "report_times=[1]"], "budget_s = 1 is too small"),
+    (["--planners", "attention", "--env", "pe_dim=8"], "pe_dim=32 in the checkpoint but pe_dim=8"),
+], ids=["budget-too-small", "checkpoint-pe_dim"])
+def test_what_an_episode_start_refuses_is_refused_before_run_json(extra, message, tmp_path):
+    """Refused before the folder is written, so the corrected rerun is not refused as 'other arguments'."""
+    if "attention" in extra:
+        pytest.importorskip("torch")
+    out = tmp_path / "lb"
+    rc, _, err = _run_cli(["leaderboard", "--tasks", "Grid15Eval-v1", "--episodes", "1", "--no-progress",
+                           "--out", str(out), *extra])
+    assert rc == 2 and message in err and "task ipp_bench/Grid15Eval-v1" in err and "Traceback" not in err, err
+    assert not out.exists()

@@ -75,7 +75,13 @@ def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
     itself, gymnasium would wrap an ``rgb_array`` env asked for ``"human"`` in its HumanRendering
     window, which asks for pygame instead.)
     """
-    cls = load_env_creator(env_class)
+    try:
+        cls = load_env_creator(env_class)
+    except ImportError as err:
+        spec = TASKS.get(kwargs.get("task_id", ""))
+        extra = "sim" if spec is not None and "deployment" in spec.tags else None  # the MuJoCo tasks
+        hint = f'pip install "ipp-bench[{extra}]"' if extra else "install the package that provides it"
+        raise ImportError(f"the environment {env_class} cannot be imported ({err}): {hint}") from None
     modes = list(cls.metadata.get("render_modes", []))
     if render_mode is not None and render_mode not in modes:
         raise ValueError(f"render_mode={render_mode!r} is invalid: valid are {modes} or None "

@@ -17,6 +17,17 @@ import numpy as np
 from ..config import cell_centre
 
 
+FIGURE_EXTRA_MESSAGE = 'the --render figure needs matplotlib: pip install "ipp-bench[eval]"'
+
+
+def require_figure() -> None:
+    """Raise ImportError (naming the extra) now if :func:`save_episode_figure` could not draw."""
+    try:
+        import matplotlib.figure  # noqa: F401
+    except ImportError:
+        raise ImportError(FIGURE_EXTRA_MESSAGE) from None
+
+
 def save_episode_figure(mission, path: str | Path, title: str = "") -> Path:
     """Write the figure of ``mission`` (after its episode) to ``path`` (PNG)."""
     try:
@@ -25,7 +36,7 @@ def save_episode_figure(mission, path: str | Path, title: str = "") -> Path:
         from matplotlib.figure import Figure
         from matplotlib.lines import Line2D
     except ImportError:
-        raise ImportError('the --render figure needs matplotlib: pip install "ipp-bench[eval]"') from None
+        raise ImportError(FIGURE_EXTRA_MESSAGE) from None
     cfg = mission.config
     g = cfg.grid
     width, height = g.size_m

@@ -316,7 +316,7 @@ def _freeze(value: Any) -> Any:
 def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None = None,
               episodes: int | None = None, seed: int = 0, quick: bool = False,
               env_overrides: dict[str, Any] | None = None,
-              log: Callable[[str], None] = print) -> Plan:
+              log: Callable[[str], None] = print, check_start: bool = True) -> Plan:
     """Resolve and validate the leaderboard's arguments.
 
     Args:
@@ -328,6 +328,9 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
         seed: base seed of the episode seeds.
         quick: few episodes and :data:`QUICK_OVERRIDES` on the planners (a spec's own keys win).
         env_overrides: IPPConfig fields set on every task.
+        check_start: start the first episode of every task with every planner (reset, no
+            decision; :func:`check_episode_starts`), so that what an episode's start refuses is
+            refused here, before a results folder is written.
 
     Raises:
         ValueError: unknown task, planner or setting; a planner that cannot be built (its message);
@@ -350,7 +353,7 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
     specs = list(planners) if planners else default_planners(log)
     if not specs:
         raise ValueError("no planner can be built: pass --planners")
-    resolved, fingerprints, quick_changed = [], {}, quick and episodes is None
+    resolved, fingerprints, quick_changed, built = [], {}, quick and episodes is None, {}
     for spec in specs:
         name = parse_spec(spec)[0]
         extra = {} if explicit else dict(LEADERBOARD_DEFAULTS.get(name, {}))
@@ -359,7 +362,8 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
         canon = canonical_spec(spec, extra)
         quick_changed = quick_changed or canon != without_quick
         # a planner must build here, or fail now, loudly (the default list holds buildable ones)
-        fingerprint = planner_fingerprint(make_planner(canon))
+        built[canon] = make_planner(canon)
+        fingerprint = planner_fingerprint(built[canon])
         if fingerprint:
             fingerprints[canon] = fingerprint
         resolved.append(canon)
@@ -367,8 +371,37 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
     if episodes is None:
         episodes = QUICK_EPISODES if quick else DEFAULT_EPISODES
     seeds = episode_seeds(seed, episodes)
+    if check_start:
+        check_episode_starts(task_ids, built, seeds[0], env_overrides)
     return Plan(tuple(task_ids), tuple(resolved), int(episodes), int(seed), tuple(seeds), env_overrides,
                 quick_changed, fingerprints)
+
+
+def check_episode_starts(tasks: Sequence[str], planners: dict[str, Any], seed: int,
+                         env_overrides: dict[str, Any]) -> None:
+    """Reset every task's env for episode ``seed`` and every planner on it (no decision).
+
+    Raises:
+        ValueError: naming task and planner: a start that pays for no first move, a planner that
+            refuses the task (an attention checkpoint made for another ``pe_dim``), ...
+    """
+    from ..planners.episode import start_episode
+    from .runner import make_env
+
+    for task in tasks:
+        env = make_env(task, **env_overrides)
+        try:
+            try:
+                env.reset(seed=int(seed))
+            except ValueError as err:
+                raise ValueError(f"task {task}: {err}") from None
+            for spec, planner in planners.items():
+                try:
+                    start_episode(env, planner, seed)
+                except ValueError as err:
+                    raise ValueError(f"task {task}, planner {spec}: {err}") from None
+        finally:
+            env.close()
 
 
 def _no_duplicates(kind: str, items: Sequence[str]) -> None:
@@ -388,5 +421,5 @@ def describe_quick() -> str:
 
 
 __all__ = ["DEFAULT_EPISODES", "LEADERBOARD_DEFAULTS", "QUICK_EPISODES", "QUICK_OVERRIDES", "EpisodeJob", "Plan", "canonical_spec",
-           "default_planners", "describe_quick", "episode_seeds", "make_plan", "planner_fingerprint",
+           "default_planners", "check_episode_starts", "describe_quick", "episode_seeds", "make_plan", "planner_fingerprint",
            "report_times", "resolve_task"]

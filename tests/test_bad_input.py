@@ -388,3 +388,35 @@ def test_what_an_episode_start_refuses_is_refused_before_run_json(extra, message
                            "--out", str(out), *extra])
     assert rc == 2 and message in err and "task ipp_bench/Grid15Eval-v1" in err and "Traceback" not in err, err
     assert not out.exists()
+
+
+# -- bounds on every size-like input (issue 19) ---------------------------------------------------
+@pytest.mark.parametrize("extra, message", [
+    (["--episodes", "100000000000"], "episodes = 100000000000 is invalid: expected an integer in [1, 10000]"),
+    (["--workers", "100000"], "workers = 100000 is invalid: expected an integer in [1, 256]"),
+    (["--env", "measurement_spacing=1e-4"], "mission.measurement_spacing = 0.0001 m"),
+    (["--env", "altitudes=[8,10000]"], "graph.altitudes = [8.0, 10000.0] is too fine"),
+    (["--env", "rows=100", "--env", "cols=100"], "= 20000 roadmap nodes is too large"),
+    (["--env", "speed=1e6"], "mission.budget_s x mission.speed = 200 s x 1e+06 m/s"),
+], ids=["episodes", "workers", "measurement_spacing", "altitudes", "rows-cols", "speed"])
+def test_a_size_beyond_its_bound_is_one_line_before_any_work(extra, message, capsys, tmp_path):
+    out = tmp_path / "lb"
+    t0 = time.perf_counter()
+    rc, stdout, err = _cli(["leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "random", "--no-progress",
+                            "--out", str(out), *extra], capsys)
+    assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert any(w in err for w in ("limit", "expected", "valid:"))  # the valid range or the memory needed
+    assert time.perf_counter() - t0 < 30 and not out.exists()
+
+
+def test_the_size_limits_hold_every_task_of_the_suite():
+    from ipp_bench.envs import TASKS
+    from ipp_bench.limits import check_sizes
+
+    for spec in TASKS.values():
+        check_sizes(spec.config)
+
+
+def test_gym_make_refuses_a_map_too_large_for_memory():
+    with pytest.raises(ValueError, match="roadmap nodes is too large.*GiB"):
+        gym.make(TASK, rows=100, cols=100)

@@ -60,6 +60,8 @@ class JobError(RuntimeError):
 WORKER_DIED = "its worker process died (killed by a signal, e.g. by the OS when memory ran out)"
 
 
+#: the most worker processes (process pool) or local Ray CPUs a run may ask for
+MAX_WORKERS = 256
 WATCH_PERIOD_S = 0.5  # [s] how often a pool worker checks that the run's process is alive
 
 
@@ -126,8 +128,7 @@ class ProcessExecutor:
     name = "process"
 
     def __init__(self, workers: int):
-        if workers < 1:
-            raise ValueError(f"workers = {workers} is invalid: expected an integer >= 1")
+        check_workers(workers)
         self.workers = workers
         methods = multiprocessing.get_all_start_methods()
         self.start_method = "forkserver" if "forkserver" in methods else "spawn"
@@ -241,6 +242,13 @@ class RayExecutor:
         return f"Ray tasks on {self.where}"
 
 
+def check_workers(workers: int) -> None:
+    """Raise ValueError unless ``workers`` is in [1, :data:`MAX_WORKERS`]."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= MAX_WORKERS:
+        raise ValueError(f"workers = {workers!r} is invalid: expected an integer in [1, {MAX_WORKERS}] "
+                         f"(this machine has {available_cpus()} CPUs)")
+
+
 def _reason(err: BaseException) -> str:
     """One line for a job's exception: its type and first line of message."""
     if isinstance(err, JobError):
@@ -258,8 +266,8 @@ def check_executor_args(backend: str, workers: int | None = None, address: str |
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend {backend!r} is invalid: valid are {list(BACKENDS)}")
-    if workers is not None and workers < 1:
-        raise ValueError(f"workers = {workers} is invalid: expected an integer >= 1")
+    if workers is not None:
+        check_workers(workers)
     if address and backend != "ray":
         raise ValueError(f"--address is for the ray backend, not {backend!r} (add --backend ray)")
     if backend == "ray":
@@ -292,4 +300,4 @@ def make_executor(backend: str, workers: int | None = None, address: str | None 
     return RayExecutor(workers, address)
 
 
-__all__ = ["BACKENDS", "WORKER_DIED", "ExecutorError", "JobError", "JobFailed", "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args", "default_backend", "make_executor"]
+__all__ = ["BACKENDS", "MAX_WORKERS", "WORKER_DIED", "check_workers", "ExecutorError", "JobError", "JobFailed", "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args", "default_backend", "make_executor"]

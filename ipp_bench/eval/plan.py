@@ -28,6 +28,8 @@ from ..planners import make_config, make_planner, parse_spec, planner_names
 
 SEED_SCHEME = "SeedSequence(seed).spawn(episodes)[i] -> uint31"
 DEFAULT_EPISODES = 20
+#: the most episodes per (task, planner): a 95% interval is already ~1/100 of the spread at 10^4
+MAX_EPISODES = 10_000
 DEFAULT_TAG = "benchmark"
 # --quick: few episodes and cheaper look-ahead (spec overrides, applied unless the spec sets the
 # key itself). Sized so that all benchmark tasks x all planners fit 5 minutes on 2 busy cores:
@@ -49,12 +51,17 @@ LEADERBOARD_DEFAULTS: dict[str, dict[str, Any]] = {
 
 def episode_seeds(seed: int, episodes: int) -> list[int]:
     """``episodes`` seeds derived from ``seed`` (prefix-stable: more episodes keep the first ones)."""
-    if episodes < 1:
-        raise ValueError(f"episodes = {episodes} is invalid: expected an integer >= 1")
+    _check_episodes(episodes)
     if seed < 0:
         raise ValueError(f"seed = {seed} is invalid: expected an integer >= 0")
     children = np.random.SeedSequence(int(seed)).spawn(int(episodes))
     return [int(c.generate_state(1, np.uint32)[0] >> 1) for c in children]
+
+
+def _check_episodes(episodes: Any) -> None:
+    if (isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer))
+            or not 1 <= episodes <= MAX_EPISODES):
+        raise ValueError(f"episodes = {episodes!r} is invalid: expected an integer in [1, {MAX_EPISODES}]")
 
 
 def resolve_task(name: str) -> str:
@@ -347,8 +354,8 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
             mission = task_config(t, env_overrides).mission
             raise ValueError(f"task {t}: no report time {mission.report_times} lies within the budget "
                              f"of {mission.budget_s} s; lower report_times or raise budget_s")
-    if episodes is not None and (isinstance(episodes, bool) or int(episodes) < 1):
-        raise ValueError(f"episodes = {episodes} is invalid: expected an integer >= 1")
+    if episodes is not None:
+        _check_episodes(episodes)
     explicit = bool(planners)
     specs = list(planners) if planners else default_planners(log)
     if not specs:
@@ -420,6 +427,6 @@ def describe_quick() -> str:
             f"planner overrides {overrides} (unless a --planners spec sets them)")
 
 
-__all__ = ["DEFAULT_EPISODES", "LEADERBOARD_DEFAULTS", "QUICK_EPISODES", "QUICK_OVERRIDES", "EpisodeJob", "Plan", "canonical_spec",
+__all__ = ["DEFAULT_EPISODES", "LEADERBOARD_DEFAULTS", "MAX_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES", "EpisodeJob", "Plan", "canonical_spec",
            "default_planners", "check_episode_starts", "describe_quick", "episode_seeds", "make_plan", "planner_fingerprint",
            "report_times", "resolve_task"]

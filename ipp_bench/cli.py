@@ -72,7 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     ev = sub.add_parser("evaluate", help="run one episode and print its metrics",
                         description="Run one episode of one planner on one task and print its metrics.")
-    ev.add_argument("--task", required=True, help="task id, e.g. ipp_bench/Grid15Eval-v0 (prefix optional)")
+    ev.add_argument("--task", required=True,
+                    help="task id, e.g. ipp_bench/Grid15Eval-v1 (prefix optional), or a task file path/to/mine.toml")
     ev.add_argument("--planner", required=True, help="planner spec, e.g. greedy or mcts:simulations=50")
     ev.add_argument("--seed", type=int, default=0, help="episode seed (field, start, sensor noise); default 0")
     ev.add_argument("--render", metavar="PNG", help="save the final render of the episode to this PNG")
@@ -84,7 +85,8 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Run the leaderboard: every planner on every task over the same episode "
                                     "seeds; writes results.csv, leaderboard.md, plots and run.json to --out. "
                                     "Resumable: rerun the same command to complete an interrupted run.")
-    lb.add_argument("--tasks", nargs="+", metavar="TASK", help="task ids (default: all tagged 'benchmark')")
+    lb.add_argument("--tasks", nargs="+", metavar="TASK",
+                    help="task ids or task files path/to/mine.toml (default: all tagged 'benchmark')")
     lb.add_argument("--planners", nargs="+", metavar="SPEC",
                     help="planner specs such as greedy or mcts:simulations=50, separated by spaces or commas "
                          "(default: every registered planner that can be built here; the others are named)")
@@ -117,7 +119,10 @@ def build_parser() -> argparse.ArgumentParser:
 # subcommands
 # --------------------------------------------------------------------------------------------------
 def cmd_tasks(args: argparse.Namespace) -> int:
-    from .envs import TASKS
+    from .envs import TASK_FILE_ERRORS, TASKS
+
+    for error in TASK_FILE_ERRORS:
+        print(f"skipped task file {error}", file=sys.stderr)
 
     width = max(len(t) for t in TASKS) if TASKS else 0
     tag_width = max((len(", ".join(s.tags)) for s in TASKS.values()), default=1)

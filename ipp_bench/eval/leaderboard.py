@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..envs import short_task_id
+from ..envs import load_task, short_task_id
 from .executors import JobError, JobFailed, default_backend, make_executor
 from .plan import (
     DEFAULT_EPISODES,
@@ -81,6 +81,8 @@ def run_job(job: EpisodeJob) -> list[dict[str, Any]]:
             raised): one line, with where the exception was raised.
     """
     try:
+        if job.task_file is not None:  # a user's task: registered in this process too
+            load_task(job.task_file)
         result = run_episode(job.task, job.planner, job.seed, **dict(job.env_overrides))
     except Exception as err:
         raise JobError(_one_line(err)) from None

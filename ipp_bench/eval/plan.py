@@ -260,6 +260,7 @@ class EpisodeJob:
     planner: str
     seed: int
     env_overrides: tuple[tuple[str, Any], ...] = ()
+    task_file: str | None = None  # a user's task file (not of the suite): a worker loads it first
 
     @property
     def key(self) -> tuple[str, str, int]:
@@ -310,7 +311,9 @@ class Plan:
     def jobs(self) -> list[EpisodeJob]:
         """Every episode, seed-major (an interrupted run has all planners on its first seeds)."""
         overrides = tuple((k, _freeze(v)) for k, v in sorted(self.env_overrides.items()))
-        return [EpisodeJob(t, p, s, overrides) for s in self.seeds for t in self.tasks for p in self.planners]
+        files = {t: (None if task_spec(t).builtin else task_spec(t).source) for t in self.tasks}
+        return [EpisodeJob(t, p, s, overrides, files[t]) for s in self.seeds for t in self.tasks
+                for p in self.planners]
 
 
 def _freeze(value: Any) -> Any:

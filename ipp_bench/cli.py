@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
 import os
 import shlex
 import signal
@@ -101,8 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="few episodes and cheaper look-ahead settings: minutes on 2 cores")
     lb.add_argument("--env", metavar="KEY=VALUE", action="append", default=[],
                     help="override a config field of every task, e.g. --env budget_s=100 (repeatable)")
-    lb.add_argument("--reference", default="greedy", metavar="SPEC",
-                    help="planner the report compares every other one with, episode by episode (default greedy)")
+    lb.add_argument("--reference", default=None, metavar="SPEC",
+                    help="planner the report compares every other one with, episode by episode (default greedy, "
+                         "when it runs); it must be one of the run's planners")
     progress = lb.add_mutually_exclusive_group()
     progress.add_argument("--progress", dest="progress", action="store_true", default=None,
                           help="always show a progress bar")
@@ -169,6 +171,17 @@ def cmd_fit_prior(args: argparse.Namespace) -> int:
     return 0
 
 
+def _finite_or_none(value):
+    """``value`` with every non-finite float replaced by None (JSON has no NaN or Infinity)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_none(v) for v in value]
+    return value
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .data import check_output_file
     from .envs import parse_overrides, resolve_task, task_config, task_spec
@@ -201,8 +214,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         result = run_episode(task, spec, args.seed, env=task_env, render_path=args.render)
     except ValueError as err:  # e.g. a budget that pays for no first move
         return _error(str(err))
-    if args.json:
-        print(json.dumps(result.to_dict(), indent=2))
+    if args.json:  # strict JSON: a metric that is not a number (no ROI, say) is null, never NaN
+        print(json.dumps(_finite_or_none(result.to_dict()), indent=2, allow_nan=False))
         return 0
     print(f"{task}  planner {spec}  seed {args.seed}")
     print(f"{'time [s]':>9} {'ROI trace':>11} {'ROI RMSE':>9} {'uncertainty red.':>17} {'RMSE red.':>10}")
@@ -217,6 +230,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.render:
         print(f"render saved to {args.render}")
     return 0
+
+
+def _reference(reference: str | None, planners: Sequence[str]) -> str | None:
+    """The report's reference planner: ``--reference`` must name one of the run's planners; without
+    it, greedy where it runs (else the report says there is no paired comparison)."""
+    from .eval.report import DEFAULT_REFERENCE, resolve_reference
+
+    if reference is None:
+        return DEFAULT_REFERENCE
+    if not reference.strip() or resolve_reference(reference.strip(), planners) is None:
+        raise ValueError(f"--reference {reference!r} names no planner of this run: valid are {list(planners)}")
+    return reference.strip()
 
 
 def _sigterm_as_interrupt(signum, frame) -> None:
@@ -241,8 +266,13 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
         print(describe_quick(), flush=True)
     try:
         check_output_dir(args.out)
-        plan = make_plan(args.tasks, split_specs(args.planners) if args.planners else None, args.episodes,
+        specs = split_specs(args.planners) if args.planners is not None else None
+        if specs is not None and not specs:
+            raise ValueError(f"--planners {' '.join(args.planners)!r} names no planner: pass planner specs "
+                             "(e.g. --planners random greedy), or leave --planners out for every planner")
+        plan = make_plan(args.tasks, specs, args.episodes,
                          args.seed, args.quick, parse_overrides(args.env), log=lambda m: print(m, flush=True))
+        reference = _reference(args.reference, plan.planners)
         backend = args.backend or ("ray" if args.address else default_backend(args.workers))
         check_executor_args(backend, args.workers, args.address)  # e.g. the ray extra, before anything runs
     except (ValueError, ImportError) as err:
@@ -254,7 +284,7 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)  # SIGTERM stops like Ctrl-C
     try:
         summary = run_leaderboard(plan, args.out, backend=backend, workers=args.workers, address=args.address,
-                                  progress=args.progress, command=command, reference=args.reference,
+                                  progress=args.progress, command=command, reference=reference,
                                   log=lambda m: print(m, flush=True))
     except Interrupted as err:
         print(f"ipp-bench: {err}", file=sys.stderr)

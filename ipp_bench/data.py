@@ -28,8 +28,11 @@ def check_output_dir(folder: str | Path, what: str = "--out") -> Path:
     """``folder`` as a Path, if it exists as a writable folder or can be created (nothing is created).
 
     Raises:
-        ValueError: a file is in the way, or the first existing folder on the way is not writable.
+        ValueError: an empty path, a file in the way, or the first existing folder on the way is
+            not writable.
     """
+    if not str(folder).strip():  # Path("") is the current folder: never what was meant
+        raise ValueError(f"{what} {str(folder)!r} is empty: expected a folder path")
     folder = Path(folder)
     existing = next((p for p in (folder, *folder.parents) if p.exists()), None)
     if existing is not None and not existing.is_dir():
@@ -45,6 +48,8 @@ def check_output_file(path: str | Path, what: str, suffix: str | None = None) ->
     Raises:
         ValueError: wrong suffix, ``path`` is a folder, or its folder cannot be written.
     """
+    if not str(path).strip():
+        raise ValueError(f"{what} {str(path)!r} is empty: expected a file path")
     path = Path(path)
     if suffix is not None and path.suffix.lower() != suffix:
         raise ValueError(f"{what} {str(path)!r} is invalid: expected a {suffix} file")

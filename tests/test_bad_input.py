@@ -420,3 +420,54 @@ def test_the_size_limits_hold_every_task_of_the_suite():
 def test_gym_make_refuses_a_map_too_large_for_memory():
     with pytest.raises(ValueError, match="roadmap nodes is too large.*GiB"):
         gym.make(TASK, rows=100, cols=100)
+
+
+# -- no silent wrong results (issue 19) -----------------------------------------------------------
+@pytest.mark.parametrize("extra, message", [
+    (["--planners", ","], "--planners ',' names no planner"),
+    (["--planners", ""], "names no planner"),
+    (["--planners", "random", "--reference", "mcts"], "--reference 'mcts' names no planner of this run"),
+    (["--planners", "random", "--env", "episode_seeds=[0,2]", "--episodes", "6"],
+     "play 2 distinct episodes of the 6 asked for"),
+    (["--planners", "random", "--out", ""], "--out '' is empty"),
+], ids=["comma-only-planners", "empty-planners", "reference-not-run", "repeating-seeds", "empty-out"])
+def test_arguments_that_would_give_a_silently_wrong_run_are_refused(extra, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    argv = ["leaderboard", "--tasks", "Grid15Eval-v1", "--episodes", "1", "--no-progress", "--out", "lb", *TINY]
+    argv = argv[:argv.index("--out")] + extra + argv[argv.index("--out"):] if "--out" not in extra else \
+        ["leaderboard", "--tasks", "Grid15Eval-v1", "--episodes", "1", "--no-progress", *TINY, *extra]
+    rc, stdout, err = _cli(argv, capsys)
+    assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == [] and "leaderboard:" not in stdout
+
+
+def test_the_default_reference_absent_from_the_run_is_no_error(capsys, tmp_path):
+    rc, _, err = _cli(_lb(tmp_path / "lb"), capsys)  # random only: no greedy to compare with
+    assert rc == 0, err
+    assert "No paired comparison" in (tmp_path / "lb" / "leaderboard.md").read_text()
+
+
+def test_evaluate_json_is_strict_json_without_nan(capsys, monkeypatch):
+    import ipp_bench.eval.runner as runner
+
+    real = runner.run_episode
+
+    def with_nan(*args, **kwargs):  # a metric that is not a number (e.g. an empty ROI)
+        result = real(*args, **kwargs)
+        result.final["rmse_roi"] = float("nan")
+        result.report[0]["rmse_reduction_pct"] = float("inf")
+        return result
+
+    monkeypatch.setattr(runner, "run_episode", with_nan)
+    rc, out, _ = _cli(["evaluate", "--task", "Grid15Eval-v1", "--planner", "random", "--json", *TINY], capsys)
+    assert rc == 0 and "NaN" not in out and "Infinity" not in out
+    data = json.loads(out, parse_constant=lambda c: pytest.fail(f"bare {c} in --json"))
+    assert data["final"]["rmse_roi"] is None and data["report"][0]["rmse_reduction_pct"] is None
+
+
+def test_progress_lines_print_reductions_as_the_report_does(capsys, tmp_path):
+    """A negative reduction (the RMSE grew) prints as -5.4%, never as '--5.4%'."""
+    rc, out, _ = _cli(_lb(tmp_path / "lb", "--episodes", "2"), capsys)
+    lines = [ln for ln in out.splitlines() if ln.startswith("[")]
+    assert rc == 0 and lines and all("uncertainty reduction " in ln and "RMSE reduction " in ln for ln in lines)
+    assert "--" not in "".join(ln.split(":", 1)[1] for ln in lines)

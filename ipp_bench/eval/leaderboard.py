@@ -143,7 +143,8 @@ class _Progress:
         last = rows[-1]
         task = short_task_id(job.task)
         text = (f"{task} {job.planner} seed={job.seed}: "
-                f"uncertainty -{last['uncertainty_reduction_pct']:.1f}% rmse -{last['rmse_reduction_pct']:.1f}% "
+                f"uncertainty reduction {last['uncertainty_reduction_pct']:.1f}%, "
+                f"RMSE reduction {last['rmse_reduction_pct']:.1f}% "
                 f"at {last['time_s']:g} s, {last['decisions']} decisions, {last['episode_wall_s']:.1f} s")
         if self.bar is not None:
             self.bar.set_postfix_str(f"{task} {job.planner}", refresh=False)

@@ -359,8 +359,11 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
                              f"of {mission.budget_s} s; lower report_times or raise budget_s")
     if episodes is not None:
         _check_episodes(episodes)
-    explicit = bool(planners)
-    specs = list(planners) if planners else default_planners(log)
+    if planners is not None and not [p for p in planners if str(p).strip(" ,")]:
+        raise ValueError(f"the planner list {list(planners)!r} names no planner: pass planner specs "
+                         "(e.g. --planners random greedy), or leave --planners out for every planner")
+    explicit = planners is not None
+    specs = list(planners) if planners is not None else default_planners(log)
     if not specs:
         raise ValueError("no planner can be built: pass --planners")
     resolved, fingerprints, quick_changed, built = [], {}, quick and episodes is None, {}
@@ -381,10 +384,24 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
     if episodes is None:
         episodes = QUICK_EPISODES if quick else DEFAULT_EPISODES
     seeds = episode_seeds(seed, episodes)
+    for t in task_ids:
+        _check_distinct_episodes(t, seeds, env_overrides)
     if check_start:
         check_episode_starts(task_ids, built, seeds[0], env_overrides)
     return Plan(tuple(task_ids), tuple(resolved), int(episodes), int(seed), tuple(seeds), env_overrides,
                 quick_changed, fingerprints)
+
+
+def _check_distinct_episodes(task: str, seeds: Sequence[int], env_overrides: dict[str, Any]) -> None:
+    """Refuse seeds that play the same episode twice on ``task`` (its ``episode_seeds`` range is
+    narrower than the run): repeated episodes would be bootstrapped as independent ones."""
+    lo, hi = task_config(task, env_overrides).mission.episode_seeds
+    played = {lo + s % (hi - lo) for s in seeds}
+    if len(played) < len(seeds):
+        raise ValueError(
+            f"task {task}: its episode_seeds [{lo}, {hi}) play {len(played)} distinct episodes of the {len(seeds)} "
+            f"asked for (seed s plays {lo} + s mod {hi - lo}); repeated episodes are not independent samples: "
+            "widen episode_seeds or lower --episodes")
 
 
 def check_episode_starts(tasks: Sequence[str], planners: dict[str, Any], seed: int,

@@ -249,7 +249,7 @@ def _sigterm_as_interrupt(signum, frame) -> None:
 
 
 def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
-    from .data import check_output_dir
+    from .data import OutputWriteError, check_output_dir
     from .envs import parse_overrides
     from .eval.executors import ExecutorError, check_executor_args, default_backend
     from .eval.leaderboard import (
@@ -289,7 +289,7 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     except Interrupted as err:
         print(f"ipp-bench: {err}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except EpisodeFailed as err:
+    except (EpisodeFailed, OutputWriteError) as err:
         print(f"ipp-bench: error: {err}", file=sys.stderr)
         return EXIT_FAILED
     except (ResultsMismatchError, ExecutorError, ImportError, ValueError) as err:

@@ -471,3 +471,47 @@ def test_progress_lines_print_reductions_as_the_report_does(capsys, tmp_path):
     lines = [ln for ln in out.splitlines() if ln.startswith("[")]
     assert rc == 0 and lines and all("uncertainty reduction " in ln and "RMSE reduction " in ln for ln in lines)
     assert "--" not in "".join(ln.split(":", 1)[1] for ln in lines)
+
+
+# -- a full disk (issue 19) -------------------------------------------------------------------------
+def test_a_file_written_atomically_is_complete_or_untouched(tmp_path):
+    import errno
+
+    from ipp_bench.data import OutputWriteError, write_atomically
+
+    path = tmp_path / "plot.png"
+    path.write_bytes(b"old")
+
+    def half_then_full(tmp):
+        tmp.write_bytes(b"\x89PNG half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(OutputWriteError, match=f"cannot write {path}: No space left on device"):
+        write_atomically(path, half_then_full)
+    assert path.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["plot.png"]
+
+
+def test_a_full_disk_during_a_leaderboard_is_one_line_and_the_rerun_completes(capsys, tmp_path, monkeypatch):
+    import errno
+    import types
+
+    import ipp_bench.eval.results as results_module
+
+    real_os, writes = results_module.os, []
+
+    def write(fd, data):
+        writes.append(len(data))
+        if len(writes) > 2:  # the third episode's rows meet a full disk
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_os.write(fd, data)
+
+    monkeypatch.setattr(results_module, "os", types.SimpleNamespace(**{**vars(real_os), "write": write}))
+    out = tmp_path / "lb"
+    rc, _, err = _cli(_lb(out, "--episodes", "4"), capsys)
+    assert rc == 1 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert f"cannot write {out / 'results.csv'}: No space left on device" in err
+    assert "2 of 4 episodes kept" in err and "rerun the same command to resume" in err
+    monkeypatch.setattr(results_module, "os", real_os)
+    rc, stdout, _ = _cli(_lb(out, "--episodes", "4"), capsys)
+    assert rc == 0 and "2 already in" in stdout
+    assert not [p for p in out.iterdir() if ".tmp" in p.name]

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import cell_centre
+from ..data import write_atomically
 
 
 FIGURE_EXTRA_MESSAGE = 'the --render figure needs matplotlib: pip install "ipp-bench[eval]"'
@@ -87,5 +88,5 @@ def save_episode_figure(mission, path: str | Path, title: str = "") -> Path:
                  f"{m['uncertainty_reduction_pct']:.1f} %, RMSE reduction {m['rmse_reduction_pct']:.1f} %",
                  fontsize=11)
     out = Path(path)
-    fig.savefig(out, dpi=100)
+    write_atomically(out, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
     return out

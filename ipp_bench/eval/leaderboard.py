@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..data import OutputWriteError
 from ..envs import load_task, short_task_id
 from .executors import JobError, JobFailed, default_backend, make_executor
 from .plan import (
@@ -181,6 +182,7 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
         ImportError: ray backend without Ray.
         Interrupted: Ctrl-C (or SIGTERM turned into KeyboardInterrupt); finished episodes are kept.
         EpisodeFailed: an episode raised or its worker died; the run stopped, finished episodes are kept.
+        OutputWriteError: a file could not be written (a full disk), naming it; finished episodes are kept.
     """
     t0 = time.perf_counter()
     if backend is None:
@@ -210,6 +212,9 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
                 raise Interrupted(len(store.done), len(jobs), Path(out_dir)) from None
             except JobFailed as err:
                 raise EpisodeFailed(err.job, err.reason, len(store.done), len(jobs), Path(out_dir), command) from None
+            except OutputWriteError as err:  # a full disk: stop, what is on disk stays resumable
+                raise OutputWriteError(f"{err}; stopped, {len(store.done)} of {len(jobs)} episodes kept in "
+                                       f"{out_dir}; free space and rerun the same command to resume") from None
             finally:
                 bar.close()
                 executor.close(abort=aborted)

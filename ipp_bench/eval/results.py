@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from ..data import check_output_dir
+from ..data import OutputWriteError, check_output_dir, write_atomically
 from ..mission import REPORT_KEYS
 from .plan import Plan, fingerprint_differences, report_times
 
@@ -316,15 +316,18 @@ class ResultsStore:
     def append(self, rows: list[dict[str, Any]]) -> None:
         """Append one episode's rows: one write of whole lines, flushed and fsync'ed."""
         data = format_rows(rows).encode()
-        fd = os.open(self.csv_path, os.O_WRONLY | os.O_APPEND)
         try:
-            view = memoryview(data)
-            while view:
-                n = os.write(fd, view)
-                view = view[n:]
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+            fd = os.open(self.csv_path, os.O_WRONLY | os.O_APPEND)
+            try:
+                view = memoryview(data)
+                while view:
+                    n = os.write(fd, view)
+                    view = view[n:]
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except OSError as err:  # a torn line at most: the resume drops it
+            raise OutputWriteError(f"cannot write {self.csv_path}: {err.strerror or err}") from None
         key = (rows[0]["task"], rows[0]["planner"], rows[0]["seed"])
         self.done[key] = rows
 
@@ -345,12 +348,7 @@ class ResultsStore:
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    write_atomically(path, lambda tmp: tmp.write_text(text))
     try:  # make the rename itself durable
         dfd = os.open(path.parent, os.O_RDONLY)
     except OSError:  # pragma: no cover

@@ -13,8 +13,10 @@ A subcommand's module is imported only when that subcommand runs, so ``ipp-bench
 never imports torch or mujoco for itself (a planner that needs torch imports it when it is built).
 Bad arguments (unknown task or planner, a bad planner setting, results of other arguments in
 ``--out``, an unwritable path, no Ray cluster) end with the library's message and exit status 2,
-without a traceback, before any episode runs. Ctrl-C (and SIGTERM during a leaderboard) ends with
-one line and exit status 130; a leaderboard keeps its finished episodes and resumes on a rerun.
+without a traceback, before any episode runs. Ctrl-C ends with one line and exit status 130 (SIGTERM
+during a leaderboard: 143); a leaderboard keeps its finished episodes and resumes on a rerun. An
+episode that fails part-way (its planner raised, its worker died, a full disk) ends the leaderboard
+with one line naming it and exit status 1; the finished episodes are kept.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from . import __version__
 EXIT_USAGE = 2
 EXIT_FAILED = 1  # an episode failed part-way (finished ones are kept)
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
+EXIT_TERMINATED = 143  # 128 + SIGTERM
 
 # subcommand -> (module, add_arguments, run, extra)
 _DELEGATED = {
@@ -244,8 +247,14 @@ def _reference(reference: str | None, planners: Sequence[str]) -> str | None:
     return reference.strip()
 
 
-def _sigterm_as_interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
+class _SigtermAsInterrupt:
+    """SIGTERM handler: stop like Ctrl-C (KeyboardInterrupt), remembering that it was SIGTERM."""
+
+    received = False
+
+    def __call__(self, signum, frame) -> None:
+        self.received = True
+        raise KeyboardInterrupt
 
 
 def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
@@ -281,14 +290,15 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
           f"episodes: {plan.episodes} per task and planner, seed {plan.seed}"
           + (f", env overrides {plan.env_overrides}" if plan.env_overrides else ""), flush=True)
     command = "ipp-bench " + " ".join(shlex.quote(a) for a in argv)
-    previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)  # SIGTERM stops like Ctrl-C
+    sigterm = _SigtermAsInterrupt()
+    previous = signal.signal(signal.SIGTERM, sigterm)  # SIGTERM stops like Ctrl-C
     try:
         summary = run_leaderboard(plan, args.out, backend=backend, workers=args.workers, address=args.address,
                                   progress=args.progress, command=command, reference=reference,
                                   log=lambda m: print(m, flush=True))
     except Interrupted as err:
         print(f"ipp-bench: {err}", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return EXIT_TERMINATED if sigterm.received else EXIT_INTERRUPTED
     except (EpisodeFailed, OutputWriteError) as err:
         print(f"ipp-bench: error: {err}", file=sys.stderr)
         return EXIT_FAILED

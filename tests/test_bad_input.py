@@ -207,7 +207,7 @@ def test_sigterm_leaves_no_child_behind_and_a_rerun_completes(tmp_path, sig):
     output = proc.stdout.read()
     assert "Traceback" not in output
     if sig == signal.SIGTERM:
-        assert "episodes kept in" in output
+        assert "episodes kept in" in output and proc.returncode == 143
     rerun = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=180)
     assert rerun.returncode == 0, rerun.stderr[-2000:]
     assert "already in" in rerun.stdout and len((out / "results.csv").read_text().splitlines()) == 1 + 2 * 6 * 2

@@ -21,6 +21,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -178,6 +179,34 @@ def _import_ray():
     return ray
 
 
+class _stderr_kept_unless_failed:
+    """Hold what is written to file descriptor 2 (C++ libraries write there directly) while the
+    block runs: replayed if it succeeds, dropped if it raises (the caller says it in one line)."""
+
+    def __enter__(self):
+        import tempfile
+
+        self._buf = tempfile.TemporaryFile()
+        try:
+            sys.stderr.flush()
+        except (AttributeError, ValueError):  # pragma: no cover
+            pass
+        self._saved = os.dup(2)
+        os.dup2(self._buf.fileno(), 2)
+        return self
+
+    def __exit__(self, exc_type, *exc):
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+        if exc_type is None:
+            self._buf.seek(0)
+            held = self._buf.read()
+            if held:
+                os.write(2, held)
+        self._buf.close()
+        return False
+
+
 class RayExecutor:
     """One Ray task per job on a Ray cluster.
 
@@ -200,7 +229,8 @@ class RayExecutor:
             self.where = "the Ray already initialised in this process"
         elif self.address:
             try:
-                ray.init(address=self.address, log_to_driver=False)
+                with _stderr_kept_unless_failed():  # Ray's C++ client logs every failed retry
+                    ray.init(address=self.address, log_to_driver=False)
             except ConnectionError:
                 raise ExecutorError(
                     f"no Ray cluster found at {self.address!r}: start one with 'ray start --head' (on this "

@@ -21,8 +21,11 @@ from .sensor import Sensor
 
 #: [bytes] the largest single array an estimate may reach (dense Laplacian, covariance, leg update)
 ARRAY_LIMIT_BYTES = 2 * 2**30
-#: the most cell widths an episode may fly (budget_s x speed / resolution): about the most legs
-MAX_FLIGHT_CELLS = 20_000
+#: decisions after which an episode that has not ended is a planner bug (the episode loop's limit)
+MAX_DECISIONS = 100_000
+#: the most cell widths an episode may fly (budget_s x speed / resolution): about its most legs,
+#: so that an episode of short legs stays within :data:`MAX_DECISIONS`
+MAX_FLIGHT_CELLS = MAX_DECISIONS
 
 _FLOAT = 8  # bytes of a float64
 
@@ -101,5 +104,5 @@ def check_sizes(config: IPPConfig) -> None:
             f"{MAX_FLIGHT_CELLS * grid.resolution:g} m on this grid")
 
 
-__all__ = ["ARRAY_LIMIT_BYTES", "MAX_FLIGHT_CELLS", "belief_states", "check_sizes", "leg_update_rows",
+__all__ = ["ARRAY_LIMIT_BYTES", "MAX_DECISIONS", "MAX_FLIGHT_CELLS", "belief_states", "check_sizes", "leg_update_rows",
            "roadmap_nodes"]

@@ -22,7 +22,7 @@ import pytest
 import ipp_bench.envs  # noqa: F401  (registers the tasks)
 from ipp_bench.cli import main
 
-TASK = "ipp_bench/Grid15Eval-v0"
+TASK = "ipp_bench/Grid15Eval-v1"
 TINY = ["--env", "budget_s=40", "--env", "report_times=[20,40]"]
 REPO = Path(__file__).resolve().parents[1]
 
@@ -35,7 +35,7 @@ def _cli(argv, capsys):
 
 
 def _lb(out, *extra):
-    return ["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random", "--episodes", "1",
+    return ["leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "random", "--episodes", "1",
             "--backend", "serial", "--no-progress", "--out", str(out), *TINY, *extra]
 
 
@@ -79,18 +79,18 @@ def test_human_render_mode_names_the_supported_modes():
 
 # -- command line -----------------------------------------------------------------------------------
 def test_evaluate_with_a_string_override_names_the_field(capsys):
-    rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", "--env", "budget_s=abc"], capsys)
+    rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v1", "--planner", "random", "--env", "budget_s=abc"], capsys)
     assert rc == 2 and "mission.budget_s = 'abc' is invalid" in err and "Traceback" not in err
 
 
 def test_evaluate_with_a_budget_too_small_is_one_line(capsys):
-    rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", "--env", "budget_s=1",
+    rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v1", "--planner", "random", "--env", "budget_s=1",
                        "--env", "report_times=[1]"], capsys)
     assert rc == 2 and "budget_s = 1 is too small" in err and len(err.strip().splitlines()) == 1
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", "--seed", "-1"], "--seed -1 is invalid"),
+    (["evaluate", "--task", "Grid15Eval-v1", "--planner", "random", "--seed", "-1"], "--seed -1 is invalid"),
     (["leaderboard", "--planners", "random", "--seed", "-3"], "seed = -3 is invalid"),
 ], ids=["evaluate", "leaderboard"])
 def test_negative_seeds_are_refused(argv, message, capsys, tmp_path):
@@ -122,7 +122,7 @@ def test_read_only_out_is_refused_before_any_episode(capsys, tmp_path):
                                              ("file/final.png", "is a file, not a folder")], ids=["suffix", "under-file"])
 def test_render_path_is_checked_before_the_episode(render, message, capsys, tmp_path):
     (tmp_path / "file").write_text("x")
-    rc, out, err = _cli(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", "--render",
+    rc, out, err = _cli(["evaluate", "--task", "Grid15Eval-v1", "--planner", "random", "--render",
                          str(tmp_path / render), *TINY], capsys)
     assert rc == 2 and message in err and "decisions" not in out
 
@@ -181,7 +181,7 @@ def test_sigterm_leaves_no_child_behind_and_a_rerun_completes(tmp_path, sig):
     """SIGTERM stops the run like Ctrl-C; after SIGKILL (no cleanup at all) the workers notice
     that the run is gone and exit by themselves."""
     out = tmp_path / "lb"
-    argv = [sys.executable, "-m", "ipp_bench.cli", "leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random",
+    argv = [sys.executable, "-m", "ipp_bench.cli", "leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "random",
             "greedy", "--episodes", "6", "--backend", "process", "--workers", "2", "--no-progress", "--out", str(out),
             "--env", "budget_s=60", "--env", "report_times=[30,60]"]
     proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -217,7 +217,7 @@ def test_ray_address_without_a_cluster_is_one_line_and_leaves_no_run_json(capsys
     pytest.importorskip("ray")
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
     out = tmp_path / "lb"
-    rc, _, err = _cli(["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random", "--episodes", "1",
+    rc, _, err = _cli(["leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "random", "--episodes", "1",
                        "--backend", "ray", "--address", "auto", "--no-progress", "--out", str(out), *TINY], capsys)
     assert rc == 2 and "no Ray cluster found at 'auto'" in err and "ray start --head" in err
     assert len(err.strip().splitlines()) == 1 and not (out / "run.json").exists()
@@ -230,7 +230,7 @@ def test_a_replaced_checkpoint_is_refused_like_any_other_change(capsys, tmp_path
     ckpt = tmp_path / "net.pt"
     net, meta = load_checkpoint(SHIPPED_CHECKPOINT)
     save_checkpoint(net, ckpt, meta)
-    argv = ["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", f"attention:checkpoint={ckpt}", "--episodes",
+    argv = ["leaderboard", "--tasks", "Grid15Eval-v1", "--planners", f"attention:checkpoint={ckpt}", "--episodes",
             "1", "--backend", "serial", "--no-progress", "--out", str(tmp_path / "lb"), *TINY]
     assert _cli(argv, capsys)[0] == 0
     import torch
@@ -247,7 +247,7 @@ def test_a_folder_from_before_checkpoint_hashes_does_not_adopt_todays_checkpoint
     an unknown network: the rerun refuses them instead of labelling them with the current hash."""
     pytest.importorskip("torch")
     out = tmp_path / "lb"
-    argv = ["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random", "attention", "--episodes", "1",
+    argv = ["leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "random", "attention", "--episodes", "1",
             "--backend", "serial", "--no-progress", "--out", str(out), *TINY]
     assert _cli(argv, capsys)[0] == 0
     meta = json.loads((out / "run.json").read_text())
@@ -273,7 +273,7 @@ def test_core_only_install_runs_the_default_leaderboard_and_names_the_extras(cap
     for module in ("matplotlib", "cma", "torch", "tqdm"):  # as after pip install ipp-bench (no extras)
         monkeypatch.setitem(sys.modules, module, None)
     out = tmp_path / "lb"
-    rc, stdout, err = _cli(["leaderboard", "--tasks", "Grid15Eval-v0", "--episodes", "1", "--backend", "serial",
+    rc, stdout, err = _cli(["leaderboard", "--tasks", "Grid15Eval-v1", "--episodes", "1", "--backend", "serial",
                             "--out", str(out), *TINY], capsys)
     assert rc == 0, err
     assert "leaving planner 'cmaes' out" in stdout and "ipp-bench[eval]" in stdout
@@ -283,7 +283,7 @@ def test_core_only_install_runs_the_default_leaderboard_and_names_the_extras(cap
 
 
 def test_planners_in_comma_form_work(capsys, tmp_path):
-    rc, stdout, _ = _cli(["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random,coverage",
+    rc, stdout, _ = _cli(["leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "random,coverage",
                           "mcts:simulations=2,exploration=0.5,greedy", "--episodes", "1", "--backend", "serial",
                           "--no-progress", "--out", str(tmp_path / "lb"), *TINY], capsys)
     assert rc == 0
@@ -297,7 +297,7 @@ def test_ctrl_c_during_evaluate_is_one_line_and_exit_130(capsys, monkeypatch):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(runner, "run_episode", interrupted)
-    rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", *TINY], capsys)
+    rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v1", "--planner", "random", *TINY], capsys)
     assert rc == 130 and err.strip() == "ipp-bench: interrupted"
 
 

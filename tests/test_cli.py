@@ -20,26 +20,26 @@ REPO = Path(__file__).resolve().parents[1]
 def test_tasks_lists_ids_and_tags(capsys):
     assert main(["tasks"]) == 0
     out = capsys.readouterr().out
-    assert "ipp_bench/Grid15Eval-v0" in out and "benchmark" in out and "train" in out
+    assert "ipp_bench/Grid15Eval-v1" in out and "benchmark" in out and "train" in out
 
 
 def test_evaluate_prints_the_metrics_and_renders(capsys, tmp_path):
     png = tmp_path / "final.png"
-    assert main(["evaluate", "--task", "Grid15Eval-v0", "--planner", "greedy", "--seed", "3",
+    assert main(["evaluate", "--task", "Grid15Eval-v1", "--planner", "greedy", "--seed", "3",
                  "--render", str(png), *TINY]) == 0
     out = capsys.readouterr().out
     assert "uncertainty red." in out and "decisions" in out
     assert out.count("%") >= 4  # two report times, two reductions
     assert png.read_bytes()[:4] == b"\x89PNG"
-    assert main(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", "--seed", "3", "--json", *TINY]) == 0
+    assert main(["evaluate", "--task", "Grid15Eval-v1", "--planner", "random", "--seed", "3", "--json", *TINY]) == 0
     data = json.loads(capsys.readouterr().out)
     assert [r["time_s"] for r in data["report"]] == [20.0, 40.0] and data["decisions"] > 0
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["evaluate", "--task", "Grid15Eval-v0", "--planner", "nope"], "unknown planner 'nope'"),
+    (["evaluate", "--task", "Grid15Eval-v1", "--planner", "nope"], "unknown planner 'nope'"),
     (["evaluate", "--task", "Nope-v0", "--planner", "random"], "unknown task"),
-    (["evaluate", "--task", "Grid15Eval-v0", "--planner", "mcts:simulations=0"], "mcts.simulations"),
+    (["evaluate", "--task", "Grid15Eval-v1", "--planner", "mcts:simulations=0"], "mcts.simulations"),
     (["leaderboard", "--planners", "greedy:depth=2"], "has no setting"),
     (["leaderboard", "--planners", "random", "--episodes", "0"], "episodes"),
     (["leaderboard", "--planners", "random", "--workers", "0"], "workers"),
@@ -54,7 +54,7 @@ def test_bad_arguments_exit_2_with_the_message_and_no_traceback(argv, message, c
 
 def test_leaderboard_runs_resumes_and_refuses_other_arguments(capsys, tmp_path):
     out = tmp_path / "lb"
-    argv = ["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "random", "coverage", "--episodes", "2",
+    argv = ["leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "random", "coverage", "--episodes", "2",
             "--seed", "1", "--backend", "serial", "--no-progress", "--out", str(out), *TINY]
     assert main(argv) == 0
     text = capsys.readouterr().out
@@ -76,7 +76,7 @@ def test_quick_help_matches_the_constant(capsys):
 def test_leaderboard_imports_neither_torch_nor_mujoco(tmp_path):
     code = (
         "import sys; from ipp_bench.cli import main; "
-        f"rc = main(['leaderboard', '--tasks', 'Grid15Eval-v0', '--planners', 'random', '--episodes', '1', "
+        f"rc = main(['leaderboard', '--tasks', 'Grid15Eval-v1', '--planners', 'random', '--episodes', '1', "
         f"'--backend', 'serial', '--progress', '--out', {str(tmp_path / 'lb')!r}, '--env', 'budget_s=20', '--env', 'report_times=[20]']); "
         "heavy = [m for m in ('torch', 'mujoco', 'stable_baselines3') if m in sys.modules]; "
         "assert rc == 0 and not heavy, (rc, heavy)"
@@ -104,6 +104,6 @@ def test_ray_backend_without_ray_names_the_extra(monkeypatch, capsys, tmp_path):
 
 
 def test_evaluate_without_a_report_time_in_the_budget_prints_the_end_of_the_mission(capsys):
-    assert main(["evaluate", "--task", "Grid15Eval-v0", "--planner", "greedy", "--env", "budget_s=12"]) == 0
+    assert main(["evaluate", "--task", "Grid15Eval-v1", "--planner", "greedy", "--env", "budget_s=12"]) == 0
     out = capsys.readouterr().out
     assert "no report time lies within the budget" in out and out.count("%") == 2

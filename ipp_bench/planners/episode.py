@@ -20,11 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from ..limits import MAX_DECISIONS
 from . import make_planner
 from .base import RobotView
 
-#: decisions after which an episode that has not ended is a planner bug
-MAX_DECISIONS = 100_000
 
 
 @dataclass

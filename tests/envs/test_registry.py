@@ -106,7 +106,18 @@ def test_a_broken_task_file_is_reported_and_the_others_still_load(case, tmp_path
     assert errors[0].startswith(f"{bad}:{line}: " if line else f"{bad}: ")
 
 
-def test_a_users_task_file_loads_from_anywhere_and_runs(tmp_path):
+@pytest.fixture
+def registry_restored():
+    """Tasks a test loads are unregistered afterwards (other tests see the suite's tasks only)."""
+    before = dict(envs.TASKS)
+    yield
+    for task in set(envs.TASKS) - set(before):
+        gym.registry.pop(task, None)
+    envs.TASKS.clear()
+    envs.TASKS.update(before)
+
+
+def test_a_users_task_file_loads_from_anywhere_and_runs(tmp_path, registry_restored):
     path = _write(tmp_path, "mine", GOOD.replace("Grid15Eval-v1", "MyGrid-v0").replace("budget_s = 200.0",
                                                                                       "budget_s = 30.0"))
     task = load_task(path)

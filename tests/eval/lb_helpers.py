@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ipp_bench.eval.leaderboard import RESULTS_CSV, TIMING_COLUMNS, make_plan, read_results, run_leaderboard
 
-TASKS = ("ipp_bench/Grid15Eval-v0", "ipp_bench/Grid20Eval-v0")
+TASKS = ("ipp_bench/Grid15Eval-v1", "ipp_bench/Grid20Eval-v1")
 PLANNERS = ("random", "coverage", "greedy", "mcts:simulations=3")
 TINY_ENV = {"budget_s": 40, "report_times": [20, 40]}
 EPISODES = 2

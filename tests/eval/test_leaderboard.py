@@ -182,7 +182,7 @@ def test_a_missing_field_away_from_its_default_is_refused_naming_it(reference_co
     def drop(fp):  # the tiny run overrides budget_s (40 s, default 150 s): no older code ran that
         del fp["task_configs"][TASKS[0]]["mission"]["budget_s"]
     _edit_run_json(reference_copy, drop)
-    with pytest.raises(ResultsMismatchError, match=r"task_configs.*\n.*Grid15Eval-v0 mission.budget_s"):
+    with pytest.raises(ResultsMismatchError, match=r"task_configs.*\n.*Grid15Eval-v1 mission.budget_s"):
         run_tiny(reference_copy)
 
 
@@ -190,7 +190,7 @@ def test_a_changed_config_field_is_named(reference_copy):
     def change(fp):
         fp["task_configs"][TASKS[1]]["gp"]["length_scale"] = 9.0
     _edit_run_json(reference_copy, change)
-    with pytest.raises(ResultsMismatchError, match=r"Grid20Eval-v0 gp.length_scale: there 9.0, now"):
+    with pytest.raises(ResultsMismatchError, match=r"Grid20Eval-v1 gp.length_scale: there 9.0, now"):
         run_tiny(reference_copy)
 
 
@@ -293,7 +293,7 @@ def test_a_planner_that_raises_stops_the_run_naming_the_episode_and_keeps_the_re
     with pytest.raises(lb.EpisodeFailed) as err:
         run_tiny(out, plan, command="ipp-bench leaderboard ...")
     message = str(err.value)
-    assert f"episode Grid15Eval-v0 boom seed {plan.seeds[1]} failed: RuntimeError: boom in act" in message
+    assert f"episode Grid15Eval-v1 boom seed {plan.seeds[1]} failed: RuntimeError: boom in act" in message
     assert "lb_helpers.py" in message and "in act" in message  # where it was raised
     assert "3 of 4 episodes kept" in message and message.endswith("resume: ipp-bench leaderboard ...")
     assert "\n" not in message
@@ -313,5 +313,5 @@ def test_a_failing_episode_in_a_worker_process_is_one_line_too(tmp_path):
                      else open(SHIPPED_CHECKPOINT, "rb").read())
     plan = tiny_plan(tasks=TASKS[:1], planners=["random", f"attention:checkpoint={ckpt}"], episodes=1)
     ckpt.unlink()
-    with pytest.raises(lb.EpisodeFailed, match=r"episode Grid15Eval-v0 attention:checkpoint=\S+ seed \d+ failed: \w+"):
+    with pytest.raises(lb.EpisodeFailed, match=r"episode Grid15Eval-v1 attention:checkpoint=\S+ seed \d+ failed: \w+"):
         run_tiny(tmp_path / "lb", plan, backend="process", workers=2)

@@ -27,6 +27,7 @@ def _train(*args, check=True):
     return proc
 
 
+@pytest.mark.slow  # a real training subprocess: 10-25 s each on 2 cores
 def test_tiny_training_run_then_resume(tmp_path):
     run = tmp_path / "run"
     _train(*TINY, "--total-steps", "64", "--out", str(run))
@@ -54,6 +55,7 @@ def test_tiny_training_run_then_resume(tmp_path):
     assert steps_after[: len(steps_before)] == steps_before and max(steps_after) == 128
 
 
+@pytest.mark.slow  # a real training subprocess: 10-25 s each on 2 cores
 def test_resume_of_an_archive_with_the_encoding_in_its_observations_is_one_line(tmp_path):
     """latest.zip of the earlier layout (pos_encoding observed per step) is refused, not a traceback."""
     import gymnasium as gym
@@ -134,6 +136,7 @@ def test_export_refuses_missing_and_wrong_files(tmp_path):
     assert proc.returncode == 2 and "not a zip archive" in proc.stderr and "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow  # a real training subprocess: 10-25 s each on 2 cores
 def test_interrupted_warm_start_resumes_to_the_same_weights(tmp_path):
     """Ctrl-C (SIGTERM) after a DAgger round: --resume continues with the next round, same result."""
     import signal
@@ -169,6 +172,7 @@ def test_interrupted_warm_start_resumes_to_the_same_weights(tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a)
 
 
+@pytest.mark.slow  # a real training subprocess: 10-25 s each on 2 cores
 def test_init_checkpoint_must_match_the_network_options(tmp_path):
     import torch
 

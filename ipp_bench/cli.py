@@ -185,6 +185,30 @@ def _finite_or_none(value):
     return value
 
 
+#: [s] wall time between two progress lines of a long ``evaluate`` episode (on stderr)
+EVALUATE_PROGRESS_EVERY_S = 10.0
+
+
+class _EpisodeProgress:
+    """``on_decision`` hook: a line on stderr every :data:`EVALUATE_PROGRESS_EVERY_S` of wall time
+    (mission time, decisions), so a long episode (MCTS on 30 x 30: minutes) is not silent."""
+
+    def __init__(self, env):
+        import time
+
+        self._env, self._clock = env, time.perf_counter
+        self._start = self._last = self._clock()
+
+    def __call__(self, decision) -> None:
+        now = self._clock()
+        if now - self._last < EVALUATE_PROGRESS_EVERY_S:
+            return
+        self._last = now
+        mission = self._env.mission
+        print(f"  ... mission time {mission.time_s:.0f} of {mission.budget_s:g} s, {decision.index + 1} decisions, "
+              f"{now - self._start:.0f} s so far", file=sys.stderr, flush=True)
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .data import check_output_file
     from .envs import parse_overrides, resolve_task, task_config, task_spec
@@ -214,7 +238,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         return _error(str(err))
 
     try:
-        result = run_episode(task, spec, args.seed, env=task_env, render_path=args.render)
+        result = run_episode(task, spec, args.seed, env=task_env, render_path=args.render,
+                             on_decision=_EpisodeProgress(task_env))
     except ValueError as err:  # e.g. a budget that pays for no first move
         return _error(str(err))
     if args.json:  # strict JSON: a metric that is not a number (no ROI, say) is null, never NaN

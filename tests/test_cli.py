@@ -107,3 +107,14 @@ def test_evaluate_without_a_report_time_in_the_budget_prints_the_end_of_the_miss
     assert main(["evaluate", "--task", "Grid15Eval-v1", "--planner", "greedy", "--env", "budget_s=12"]) == 0
     out = capsys.readouterr().out
     assert "no report time lies within the budget" in out and out.count("%") == 2
+
+
+def test_evaluate_shows_progress_on_long_episodes_on_stderr(capsys, monkeypatch):
+    import ipp_bench.cli as cli
+
+    monkeypatch.setattr(cli, "EVALUATE_PROGRESS_EVERY_S", 0.0)  # every decision is "long"
+    assert main(["evaluate", "--task", "Grid15Eval-v1", "--planner", "greedy", "--json", *TINY]) == 0
+    out, err = capsys.readouterr()
+    json.loads(out)  # stdout stays the JSON alone
+    lines = [ln for ln in err.splitlines() if ln]
+    assert lines and all(ln.startswith("  ... mission time ") and "of 40 s" in ln for ln in lines)

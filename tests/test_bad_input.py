@@ -515,3 +515,36 @@ def test_a_full_disk_during_a_leaderboard_is_one_line_and_the_rerun_completes(ca
     rc, stdout, _ = _cli(_lb(out, "--episodes", "4"), capsys)
     assert rc == 0 and "2 already in" in stdout
     assert not [p for p in out.iterdir() if ".tmp" in p.name]
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc (Linux)")
+@pytest.mark.timeout(240)
+def test_sigterm_on_the_ray_backend_is_the_same_one_line_and_exit_143(tmp_path):
+    """Ray's own SIGTERM handler (a C++ stack dump, then death) does not replace the leaderboard's."""
+    pytest.importorskip("ray")
+    out = tmp_path / "lb"
+    argv = [sys.executable, "-m", "ipp_bench.cli", "leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "greedy",
+            "--episodes", "6", "--backend", "ray", "--workers", "2", "--no-progress", "--out", str(out),
+            "--env", "budget_s=60", "--env", "report_times=[30,60]"]
+    proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline:
+            if (out / "results.csv").exists() and len((out / "results.csv").read_text().splitlines()) > 1:
+                break
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=120)
+        deadline = time.monotonic() + 30
+        while _descendants_alive(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert _descendants_alive(proc.pid) == [], "a Ray process outlived the leaderboard"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 143, stderr
+    assert "SIGTERM received" not in stderr and "episodes kept in" in stderr

@@ -225,6 +225,9 @@ class RayExecutor:
         self.workers = workers
         self.address = address or os.environ.get("RAY_ADDRESS") or None
         self._owns = False
+        # ray.init installs a C++ handler that dumps a stack and kills the process on SIGTERM; the
+        # caller's handler (the leaderboard: stop like Ctrl-C, keep the episodes) is put back after it
+        handler = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
         if ray.is_initialized():
             self.where = "the Ray already initialised in this process"
         elif self.address:
@@ -242,6 +245,8 @@ class RayExecutor:
             ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
             self._owns = True
             self.where = f"a local Ray with {workers} CPUs"
+        if callable(handler):
+            signal.signal(signal.SIGTERM, handler)
         self._remote = ray.remote(num_cpus=1, max_retries=0)(_call_in_worker)
 
     def imap_unordered(self, fn: Callable[[J], R], jobs: Sequence[J]) -> Iterator[tuple[J, R]]:

@@ -233,20 +233,27 @@ def task_spec(task_id: str) -> TaskSpec:
     if str(task_id).endswith(".toml"):  # a user's task file
         return TASKS[load_task(task_id)]
     try:
-        return TASKS[resolve_task(task_id)]
+        return TASKS[_full_id(task_id)]
     except KeyError:
         skipped = f"; skipped task files: {'; '.join(TASK_FILE_ERRORS)}" if TASK_FILE_ERRORS else ""
         raise ValueError(f"unknown task {task_id!r}: valid are {sorted(TASKS)} or a task file path "
                          f"(path/to/mine.toml){skipped}") from None
 
 
-def resolve_task(name: str) -> str:
-    """The full task id of ``name``: the namespace prefix is optional. Does not check it exists,
-    except for a task file path (``path/to/mine.toml``), which is loaded (:func:`load_task`)."""
-    name = name.strip()
-    if name.endswith(".toml"):  # a user's task file: loaded and registered
-        return load_task(name)
+def _full_id(name: str) -> str:
+    """``"Grid15Eval-v1"`` -> ``"ipp_bench/Grid15Eval-v1"`` (the namespace prefix is optional)."""
+    name = str(name).strip()
     return name if "/" in name else f"{NAMESPACE}/{name}"
+
+
+def resolve_task(name: str) -> str:
+    """The registered task id that ``name`` stands for: an id, an id without the ``ipp_bench/``
+    prefix, or a task file path (``path/to/mine.toml``, loaded and registered, :func:`load_task`).
+
+    Raises:
+        ValueError: no such task (naming the valid ones), or an invalid task file.
+    """
+    return task_spec(name).id
 
 
 def short_task_id(task_id: str) -> str:

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..config import IPPConfig, field_owners
 from ..envs import tagged, task_config, task_spec
-from ..envs.registry import resolve_task as _resolve
+from ..envs.registry import resolve_task
 from ..planners import make_config, make_planner, parse_spec, planner_names
 
 SEED_SCHEME = "SeedSequence(seed).spawn(episodes)[i] -> uint31"
@@ -62,13 +62,6 @@ def _check_episodes(episodes: Any) -> None:
     if (isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer))
             or not 1 <= episodes <= MAX_EPISODES):
         raise ValueError(f"episodes = {episodes!r} is invalid: expected an integer in [1, {MAX_EPISODES}]")
-
-
-def resolve_task(name: str) -> str:
-    """A registered task id; ``"Grid15Eval-v0"`` stands for ``"ipp_bench/Grid15Eval-v0"``."""
-    task_id = _resolve(name)
-    task_spec(task_id)  # ValueError naming the valid ids
-    return task_id
 
 
 def canonical_spec(spec: str, extra: dict[str, Any] | None = None) -> str:

@@ -20,8 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from . import make_planner
-from .base import RobotView
+from . import make_planner, view_for
 
 #: decisions after which an episode that has not ended is a planner bug
 MAX_DECISIONS = 100_000
@@ -110,7 +109,7 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
     agent = make_planner(planner) if isinstance(planner, str) else planner
     label = planner if isinstance(planner, str) else agent.name
     obs, _ = env.reset(seed=int(seed), options=options)
-    agent.reset(RobotView(env), int(seed))
+    agent.reset(view_for(agent, env), int(seed))
     if on_reset is not None:
         on_reset(env)
     times: list[float] = []

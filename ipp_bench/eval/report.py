@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from ..data import write_atomically
 from ..envs import short_task_id
 from ..planners import is_reference
 from .results import read_results
@@ -359,7 +360,7 @@ def plot_curves(agg: Aggregate, task: str, path: str | Path) -> Path:
     axes[0].legend(fontsize="small")
     fig.suptitle(f"{short_task(task)}: mean and {LEVEL:.0%} bootstrap band over episodes")
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     return path
 
 
@@ -387,7 +388,7 @@ def plot_runtime(agg: Aggregate, path: str | Path) -> Path:
     ax.legend(fontsize="small")
     ax.set_title("Runtime per decision: mean over episodes, 95% bootstrap interval", fontsize="medium")
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     return path
 
 
@@ -420,7 +421,8 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
         for note in notes:
             log(f"note: {note}")
     md = out_dir / "leaderboard.md"
-    md.write_text(markdown_report(agg, command, quick, [p.name for p in written], reference, notes))
+    text = markdown_report(agg, command, quick, [p.name for p in written], reference, notes)
+    write_atomically(md, lambda tmp: tmp.write_text(text))
     return [md, *written]
 
 

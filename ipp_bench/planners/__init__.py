@@ -69,8 +69,11 @@ def planner_class(name: str) -> type:
         target = REGISTRY[name]
     except KeyError:
         raise ValueError(f"unknown planner {name!r}: valid are {planner_names()}") from None
-    module, cls = target.split(":")
-    return getattr(importlib.import_module(module), cls)
+    module, _, cls = target.partition(":")
+    try:
+        return getattr(importlib.import_module(module), cls)
+    except AttributeError:
+        raise ValueError(f"planner {name!r}: {module} has no {cls!r} (registered as {target!r})") from None
 
 
 def split_specs(items: typing.Iterable[str]) -> list[str]:
@@ -128,7 +131,11 @@ def _coerce(value: Any, kind: Any, where: str) -> Any:
 def make_config(name: str, overrides: dict[str, Any] | None = None) -> Any:
     """The planner's config dataclass with ``overrides`` (strings are converted to the field type)."""
     cls = planner_class(name)
-    Config = cls.Config
+    Config = getattr(cls, "Config", None)
+    if not (isinstance(Config, type) and dataclasses.is_dataclass(Config)):
+        raise ValueError(f"planner {name!r} ({REGISTRY[name]}) has no Config dataclass: a planner class "
+                         "needs one, e.g. 'Config = MyConfig' with @dataclass(frozen=True) class MyConfig "
+                         "(empty if it has no settings; see docs/planners.md)")
     overrides = dict(overrides or {})
     hints = typing.get_type_hints(Config)
     fields = {f.name for f in dataclasses.fields(Config)}

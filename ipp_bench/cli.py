@@ -65,12 +65,16 @@ def build_parser() -> argparse.ArgumentParser:
                    description="List the registered tasks with their tags.")
 
     fp = sub.add_parser("fit-prior", help="fit a task's GP prior to its field family (log marginal likelihood)",
-                        description="Fit the Matern 3/2 prior (length scale, signal variance, nugget; mean fixed) "
-                                    "to independent maps of the task's field family by maximising the log "
-                                    "marginal likelihood, as the paper did (Section V-A).")
+                        description="Fit the Matern 3/2 prior (length scale, signal variance, nugget; the mean "
+                                    "fixed at the task's, or fitted with --fit-mean) to independent maps of the "
+                                    "task's field family by maximising the log marginal likelihood, as the paper "
+                                    "did (Section V-A).")
     fp.add_argument("--task", required=True, help="task id, e.g. ipp_bench/Grid15Eval-v1 (prefix optional)")
     fp.add_argument("--maps", type=int, default=None, help="independent maps to fit on (default 40)")
     fp.add_argument("--seed", type=int, default=None, help="seed of the fitting maps (default: the fixed fit seed)")
+    fp.add_argument("--fit-mean", action="store_true",
+                    help="fit the prior mean too (generalised least squares; sparse fields such as weed patches "
+                         "average far below the paper's 0.5)")
     fp.add_argument("--write", action="store_true",
                     help="write the fitted values into the task's TOML file, with this command as a comment")
 
@@ -155,20 +159,22 @@ def cmd_fit_prior(args: argparse.Namespace) -> int:
     except ValueError as err:
         return _error(str(err))
     cfg = spec.config
+    mean_text = "prior mean fitted" if args.fit_mean else f"prior mean {cfg.gp.prior_mean:g} fixed"
     print(f"{spec.id}: fitting a Matern 3/2 prior to {maps} {cfg.mission.field} maps of "
-          f"{cfg.grid.rows} x {cfg.grid.cols} cells (seed {seed}, prior mean {cfg.gp.prior_mean:g} fixed)", flush=True)
-    fit = gp_fit.fit_prior(cfg, maps, seed)
-    held = gp_fit.held_out_lml(cfg, fit.length_scale, fit.signal_variance, fit.nugget)
+          f"{cfg.grid.rows} x {cfg.grid.cols} cells (seed {seed}, {mean_text})", flush=True)
+    fit = gp_fit.fit_prior(cfg, maps, seed, fit_mean=args.fit_mean)
+    held = gp_fit.held_out_lml(cfg, fit.length_scale, fit.signal_variance, fit.nugget, prior_mean=fit.prior_mean)
     task_gp = cfg.gp
     held_task = gp_fit.held_out_lml(cfg, task_gp.length_scale, task_gp.signal_variance, max(task_gp.nugget, 1e-9))
+    mean_line = f"  prior_mean      {fit.prior_mean:.4g} (fitted)\n" if args.fit_mean else ""
     print(f"  length_scale    {fit.length_scale:.4g} m\n  signal_variance {fit.signal_variance:.4g}\n"
-          f"  nugget          {fit.nugget:.4g}\n  log marginal likelihood per map: {fit.lml_per_map:.2f} (fit maps), "
+          f"  nugget          {fit.nugget:.4g}\n{mean_line}  log marginal likelihood per map: {fit.lml_per_map:.2f} (fit maps), "
           f"{held:.2f} (held-out maps; the task file's current prior: {held_task:.2f})")
     if fit.length_scale > 100.0 and fit.nugget > fit.signal_variance:
         print("  note: the maps have no spatial structure at this scale (the nugget holds the variance)")
     if args.write:
         command = f"ipp-bench fit-prior --task {spec.id}" + ("" if args.maps is None else f" --maps {maps}") \
-            + ("" if args.seed is None else f" --seed {seed}") + " --write"
+            + ("" if args.seed is None else f" --seed {seed}") + (" --fit-mean" if args.fit_mean else "") + " --write"
         gp_fit.write_gp_section(spec.source, fit, command)
         print(f"wrote [config.gp] of {spec.source}")
     return 0

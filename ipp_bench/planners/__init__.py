@@ -23,7 +23,7 @@ import typing
 from importlib.metadata import entry_points
 from typing import Any
 
-from .base import ContinuousPlanner, GraphPlanner, Planner, RobotView
+from .base import ContinuousPlanner, GraphPlanner, Planner, RobotView, TruthView
 
 # name -> "module:Class"; the class has a ``Config`` dataclass attribute.
 REGISTRY: dict[str, str] = {
@@ -33,7 +33,11 @@ REGISTRY: dict[str, str] = {
     "mcts": "ipp_bench.planners.mcts:MCTSPlanner",
     "cmaes": "ipp_bench.planners.cmaes:CMAESPlanner",
     "attention": "ipp_bench.policies.planner:AttentionPlanner",
+    "oracle": "ipp_bench.planners.oracle:OraclePlanner",
 }
+#: reference planners: they read the true ROI (a :class:`~ipp_bench.planners.base.TruthView`) to
+#: show the room above the planners that cannot; reports show them apart, never as the best
+REFERENCE_PLANNERS: tuple[str, ...] = ("oracle",)
 ENTRY_POINT_GROUP = "ipp_bench.planners"
 _plugins_loaded = False
 
@@ -142,6 +146,32 @@ def make_config(name: str, overrides: dict[str, Any] | None = None) -> Any:
     return Config(**values)
 
 
+def is_reference(spec: str) -> bool:
+    """Whether the planner of ``spec`` (``"oracle"``, ``"oracle:..."``) is a reference that reads the truth."""
+    return parse_spec(spec)[0] in REFERENCE_PLANNERS
+
+
+def view_for(planner: Any, env: Any) -> RobotView:
+    """The view ``planner`` gets of ``env``: a :class:`TruthView` for the suite's reference planners,
+    a :class:`RobotView` (no ground truth) for every other.
+
+    Raises:
+        ValueError: a planner that asks to read the truth (``reads_truth``) but is not one of
+            :data:`REFERENCE_PLANNERS` registered here (a plugin cannot grant itself the truth).
+    """
+    if not getattr(planner, "reads_truth", False):
+        return RobotView(env)
+    name = getattr(planner, "name", "?")
+    target = REGISTRY.get(name, "")
+    module, _, cls = target.partition(":")
+    own = (name in REFERENCE_PLANNERS and type(planner).__module__ == module
+           and type(planner).__name__ == cls)
+    if not own:
+        raise ValueError(f"planner {name!r} sets reads_truth, but only the suite's reference planners "
+                         f"{list(REFERENCE_PLANNERS)} may read the ground truth")
+    return TruthView(env)
+
+
 def make_planner(spec: str, **overrides: Any):
     """A planner from ``"name[:key=value,...]"``; keyword overrides win over the spec's."""
     name, spec_overrides = parse_spec(spec)
@@ -149,5 +179,5 @@ def make_planner(spec: str, **overrides: Any):
     return cls(make_config(name, {**spec_overrides, **overrides}))
 
 
-__all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "REGISTRY", "ENTRY_POINT_GROUP", "register",
-           "planner_names", "planner_class", "split_specs", "parse_spec", "make_config", "make_planner"]
+__all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "TruthView", "REGISTRY", "REFERENCE_PLANNERS",
+           "ENTRY_POINT_GROUP", "register", "is_reference", "view_for", "planner_names", "planner_class", "split_specs", "parse_spec", "make_config", "make_planner"]

@@ -21,9 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..limits import MAX_DECISIONS
-from . import make_planner
-from .base import RobotView
-
+from . import make_planner, view_for
 
 
 @dataclass
@@ -99,7 +97,7 @@ def start_episode(env, planner, seed: int, options: dict | None = None):
     """
     agent = make_planner(planner) if isinstance(planner, str) else planner
     obs, _ = env.reset(seed=int(seed), options=options)
-    agent.reset(RobotView(env), int(seed))
+    agent.reset(view_for(agent, env), int(seed))
     return agent, obs
 
 

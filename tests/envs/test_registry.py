@@ -12,8 +12,28 @@ def test_registry_has_the_paper_tasks():
     v0 = {"ipp_bench/Grid15-v0", "ipp_bench/Grid15Eval-v0", "ipp_bench/Grid20Eval-v0"}
     assert v0 <= set(tagged("v0"))
     assert "ipp_bench/Grid15-v0" in tagged("train")
-    assert set(tagged("benchmark")) == {"ipp_bench/Grid15Eval-v1", "ipp_bench/Grid20Eval-v1", "ipp_bench/Grid30Eval-v1"}
-    assert {"ipp_bench/Grid15Train-v1", "ipp_bench/Grid30Train-v1"} <= set(tagged("train"))
+    v1 = {"ipp_bench/Grid15Eval-v1", "ipp_bench/Grid20Eval-v1", "ipp_bench/Grid30Eval-v1"}
+    v2 = {"ipp_bench/Hotspots15Eval-v2", "ipp_bench/Hotspots30Eval-v2"}
+    assert set(tagged("benchmark")) == v1 | v2  # the leaderboard's default task list: v1 and v2
+    assert v2 <= set(tagged("v2"))
+    assert {"ipp_bench/Grid15Train-v1", "ipp_bench/Grid30Train-v1", "ipp_bench/Hotspots15Train-v2",
+            "ipp_bench/Hotspots30Train-v2"} <= set(tagged("train"))
+
+
+def test_v2_tasks_are_sparse_hotspots_with_a_fitted_mean():
+    """Weed patches whose ROI (truth >= mu_th) is a minority of the cells, a prior mean fitted far below
+    the paper's 0.5, and a belief ROI that covers the whole map before the first look."""
+    from ipp_bench.fields import make_field
+    for task in ("ipp_bench/Hotspots15Eval-v2", "ipp_bench/Hotspots30Eval-v2"):
+        cfg = envs.TASKS[task].config
+        assert cfg.mission.field == "weed_patches" and cfg.gp.prior_mean < 0.1
+        fractions = [np.mean(make_field("weed_patches", cfg.grid, np.random.default_rng(s)) >= cfg.mission.mu_th)
+                     for s in range(50)]
+        assert 0 < min(fractions) and max(fractions) < 0.5
+        sigma = np.sqrt(cfg.gp.signal_variance + cfg.gp.nugget)
+        assert cfg.gp.prior_mean + cfg.mission.beta * sigma > cfg.mission.mu_th + 0.1
+        train = envs.TASKS[task.replace("Eval", "Train")].config
+        assert train.replace(episode_seeds=cfg.mission.episode_seeds) == cfg  # the same task on other seeds
 
 
 def test_registration_is_idempotent():
@@ -34,7 +54,8 @@ def test_import_ipp_bench_registers_the_tasks():
 def test_training_seeds_never_meet_evaluation_seeds():
     """Every v1 training task plays episode seeds that no evaluation task (nor the leaderboard) can."""
     from ipp_bench.eval.leaderboard import episode_seeds
-    train = [envs.TASKS[t].config.mission.episode_seeds for t in tagged("train") if "v1" in envs.TASKS[t].tags]
+    train = [envs.TASKS[t].config.mission.episode_seeds for t in tagged("train")
+             if {"v1", "v2"} & set(envs.TASKS[t].tags)]
     evals = [envs.TASKS[t].config.mission.episode_seeds for t in tagged("benchmark")]
     assert train and evals
     for lo, hi in train:

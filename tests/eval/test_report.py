@@ -63,7 +63,7 @@ def test_equal_means_are_all_bold():
 def test_report_of_a_run_has_every_planner_and_the_plots(reference_run):
     out, summary = reference_run
     names = {p.name for p in summary.files}
-    assert {"leaderboard.md", "curves_Grid15Eval-v0.png", "curves_Grid20Eval-v0.png",
+    assert {"leaderboard.md", "curves_Grid15Eval-v1.png", "curves_Grid20Eval-v1.png",
             "runtime_per_decision.png"} <= names
     for p in summary.files:
         if p.suffix == ".png":
@@ -72,7 +72,7 @@ def test_report_of_a_run_has_every_planner_and_the_plots(reference_run):
     md = (out / "leaderboard.md").read_text()
     for planner in PLANNERS:  # two tasks, two tables, and (all but the reference) two paired tables
         assert md.count(f"`{planner}`") == 8  # greedy: its two tables, and named by the paired ones
-    assert md.count("**Grid15Eval-v0**") == 4 and "Uncertainty reduction 20 s" in md
+    assert md.count("**Grid15Eval-v1**") == 4 and "Uncertainty reduction 20 s" in md
     assert "each planner minus `greedy`, on the same episodes" in md
 
 

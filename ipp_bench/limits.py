@@ -99,9 +99,10 @@ def check_sizes(config: IPPConfig) -> None:
     if flight_cells > MAX_FLIGHT_CELLS:
         raise ValueError(
             f"mission.budget_s x mission.speed = {mission.budget_s:g} s x {mission.speed:g} m/s is "
-            f"{mission.budget_s * mission.speed:.4g} m of flight, {flight_cells:.4g} cell widths: more than the "
-            f"{MAX_FLIGHT_CELLS} an episode may fly (its legs would not end); valid: budget_s x speed <= "
-            f"{MAX_FLIGHT_CELLS * grid.resolution:g} m on this grid")
+            f"{mission.budget_s * mission.speed:.4g} m of flight, {flight_cells:.4g} cell widths of "
+            f"grid.resolution = {grid.resolution:g} m: more than the {MAX_FLIGHT_CELLS} an episode may fly (its "
+            f"legs would not end); valid: budget_s x speed <= {MAX_FLIGHT_CELLS * grid.resolution:g} m "
+            "at this resolution")
 
 
 __all__ = ["ARRAY_LIMIT_BYTES", "MAX_DECISIONS", "MAX_FLIGHT_CELLS", "belief_states", "check_sizes", "leg_update_rows",

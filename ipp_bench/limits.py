@@ -59,8 +59,8 @@ def leg_update_rows(config: IPPConfig) -> tuple[int, float, int]:
     longest = math.sqrt(width**2 + height**2 + (graph.altitudes[-1] - graph.altitudes[0]) ** 2)
     samples = int(longest / mission.measurement_spacing) + 1
     side = Sensor(grid, config.sensor).footprint_side(graph.altitudes[-1])
-    per_axis = min(grid.cols, math.ceil(side / grid.resolution) + 1), min(grid.rows, math.ceil(side / grid.resolution) + 1)
-    cells = per_axis[0] * per_axis[1]
+    across = math.ceil(side / grid.resolution) + 1  # cells a look spans along one axis, at most
+    cells = min(grid.cols, across) * min(grid.rows, across)
     return samples * cells, longest, cells
 
 

@@ -361,7 +361,8 @@ def test_render_without_matplotlib_is_refused_before_the_episode(tmp_path):
     png = tmp_path / "x.png"
     rc, out, err = _run_cli(["evaluate", "--task", "Grid15Eval-v1", "--planner", "greedy", "--render", str(png)],
                             block=("matplotlib",))
-    assert rc == 2 and err.strip() == 'ipp-bench: error: the --render figure needs matplotlib: pip install "ipp-bench[eval]"'
+    expected = 'ipp-bench: error: the --render figure needs matplotlib: pip install "ipp-bench[eval]"'
+    assert rc == 2 and err.strip() == expected
     assert "decisions" not in out and not png.exists()
 
 

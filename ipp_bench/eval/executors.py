@@ -335,4 +335,6 @@ def make_executor(backend: str, workers: int | None = None, address: str | None 
     return RayExecutor(workers, address)
 
 
-__all__ = ["BACKENDS", "MAX_WORKERS", "WORKER_DIED", "check_workers", "ExecutorError", "JobError", "JobFailed", "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args", "default_backend", "make_executor"]
+__all__ = ["BACKENDS", "MAX_WORKERS", "WORKER_DIED", "check_workers", "ExecutorError", "JobError", "JobFailed",
+           "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args",
+           "default_backend", "make_executor"]

@@ -17,7 +17,6 @@ import numpy as np
 from ..config import cell_centre
 from ..data import write_atomically
 
-
 FIGURE_EXTRA_MESSAGE = 'the --render figure needs matplotlib: pip install "ipp-bench[eval]"'
 
 

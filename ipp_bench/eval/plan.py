@@ -440,6 +440,6 @@ def describe_quick() -> str:
             f"planner overrides {overrides} (unless a --planners spec sets them)")
 
 
-__all__ = ["DEFAULT_EPISODES", "LEADERBOARD_DEFAULTS", "MAX_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES", "EpisodeJob", "Plan", "canonical_spec",
-           "default_planners", "check_episode_starts", "describe_quick", "episode_seeds", "make_plan", "planner_fingerprint",
-           "report_times", "resolve_task"]
+__all__ = ["DEFAULT_EPISODES", "LEADERBOARD_DEFAULTS", "MAX_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES",
+           "EpisodeJob", "Plan", "canonical_spec", "default_planners", "check_episode_starts", "describe_quick",
+           "episode_seeds", "make_plan", "planner_fingerprint", "report_times", "resolve_task"]

@@ -180,4 +180,5 @@ def make_planner(spec: str, **overrides: Any):
 
 
 __all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "TruthView", "REGISTRY", "REFERENCE_PLANNERS",
-           "ENTRY_POINT_GROUP", "register", "is_reference", "view_for", "planner_names", "planner_class", "split_specs", "parse_spec", "make_config", "make_planner"]
+           "ENTRY_POINT_GROUP", "register", "is_reference", "view_for", "planner_names", "planner_class",
+           "split_specs", "parse_spec", "make_config", "make_planner"]

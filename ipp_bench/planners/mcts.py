@@ -36,7 +36,6 @@ from ..mission import TIME_TOL_S
 from ..sensor import stack
 from .base import GraphPlanner, softmax
 
-
 #: the most simulations per decision (a decision at 10^5 takes about half an hour)
 MAX_SIMULATIONS = 100_000
 

@@ -126,7 +126,8 @@ def _check_shapes(path: Path, cfg: NetConfig, state: dict[str, torch.Tensor]) ->
     unexpected = sorted(set(state) - set(shapes))
     wrong = [k for k in shapes if k in state and tuple(state[k].shape) != shapes[k]]
     if missing or unexpected or wrong:
-        what = ([f"missing {missing[:3]}"] if missing else []) + ([f"unexpected {unexpected[:3]}"] if unexpected else [])
+        what = [f"missing {missing[:3]}"] if missing else []
+        what += [f"unexpected {unexpected[:3]}"] if unexpected else []
         what += [f"{k} is {tuple(state[k].shape)}, expected {shapes[k]}" for k in wrong[:2]]
         raise CheckpointError(f"checkpoint {path} does not fit AttentionNet({cfg}): {'; '.join(what)}")
 

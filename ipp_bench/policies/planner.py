@@ -52,7 +52,8 @@ def resolve_device(torch, device: str):
     try:
         dev = torch.device(str(device))
     except (RuntimeError, TypeError, ValueError):
-        raise ValueError(f"attention.device = {device!r} is invalid: expected 'cpu', 'cuda', 'cuda:N' or 'mps'") from None
+        raise ValueError(f"attention.device = {device!r} is invalid: "
+                         "expected 'cpu', 'cuda', 'cuda:N' or 'mps'") from None
     if dev.type == "cpu":
         return dev
     if dev.type == "cuda":

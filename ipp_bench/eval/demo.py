@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data import write_atomically
 from ..sim.video import DemoVideo, make_sim_env
 
 DEFAULT_TASK = "ipp_bench/MuJoCoWeed15-v1"
@@ -120,7 +121,7 @@ def compare_plot(logs: list, budget: float, report_times, path: str, title: str)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=9)
     fig.tight_layout()
-    fig.savefig(path)
+    write_atomically(path, lambda tmp: fig.savefig(tmp, format="png"))  # complete or absent, never truncated
 
 
 def _check_writable(path: Path) -> None:

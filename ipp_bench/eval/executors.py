@@ -58,7 +58,8 @@ class JobError(RuntimeError):
 
 
 #: the reason given for a job whose worker process vanished (SIGKILL, the kernel's OOM killer)
-WORKER_DIED = "its worker process died (killed by a signal, e.g. by the OS when memory ran out)"
+WORKER_DIED = ("a worker process died while it was running (killed by a signal, e.g. by the OS when memory "
+               "ran out; the dead worker may have held another of the episodes running then)")
 
 
 #: the most worker processes (process pool) or local Ray CPUs a run may ask for

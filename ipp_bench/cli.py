@@ -292,14 +292,9 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from .data import OutputWriteError, check_output_dir
     from .envs import parse_overrides
     from .eval.executors import ExecutorError, check_executor_args, default_backend
-    from .eval.leaderboard import (
-        EpisodeFailed,
-        Interrupted,
-        ResultsMismatchError,
-        describe_quick,
-        make_plan,
-        run_leaderboard,
-    )
+    from .eval.leaderboard import EpisodeFailed, Interrupted, run_leaderboard
+    from .eval.plan import describe_quick, make_plan
+    from .eval.results import ResultsMismatchError
     from .planners import split_specs
 
     if args.quick:

@@ -11,7 +11,7 @@ import pytest
 
 from ipp_bench.cli import main
 from ipp_bench.eval.executors import check_executor_args
-from ipp_bench.eval.leaderboard import QUICK_EPISODES
+from ipp_bench.eval.plan import QUICK_EPISODES
 
 TINY = ["--env", "budget_s=40", "--env", "report_times=[20,40]"]
 REPO = Path(__file__).resolve().parents[1]

@@ -5,7 +5,7 @@ not hold yet and then writes the report (``leaderboard.md`` and PNG plots, see
 :mod:`ipp_bench.eval.report`). Planning the run (arguments, seeds, fingerprint) is
 :mod:`ipp_bench.eval.plan`; the results folder (run.json, resumable results.csv, lock) is
 :mod:`ipp_bench.eval.results`; where episodes run is :mod:`ipp_bench.eval.executors`. This
-module runs them, and re-exports the public names of the other three.
+module runs them; import the names of the other three from them.
 
 An interrupted run (Ctrl-C, SIGTERM) keeps every finished episode; rerunning the same command
 resumes it. Workers of the process pool exit when the run's process dies.
@@ -24,32 +24,8 @@ from typing import Any
 from ..data import OutputWriteError
 from ..envs import load_task, short_task_id
 from .executors import JobError, JobFailed, default_backend, make_executor
-from .plan import (
-    DEFAULT_EPISODES,
-    LEADERBOARD_DEFAULTS,
-    QUICK_EPISODES,
-    QUICK_OVERRIDES,
-    EpisodeJob,
-    Plan,
-    canonical_spec,
-    default_planners,
-    describe_quick,
-    episode_seeds,
-    make_plan,
-    report_times,
-    resolve_task,
-)
-from .results import (
-    COLUMNS,
-    RESULTS_CSV,
-    RUN_JSON,
-    TIMING_COLUMNS,
-    ResultsMismatchError,
-    ResultsStore,
-    format_header,
-    format_rows,
-    read_results,
-)
+from .plan import EpisodeJob, Plan, report_times
+from .results import ResultsStore
 from .runner import run_episode
 
 
@@ -229,32 +205,4 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
     return Summary(Path(out_dir), len(jobs), skipped, len(todo), wall, files)
 
 
-__all__ = [
-    "COLUMNS",
-    "DEFAULT_EPISODES",
-    "LEADERBOARD_DEFAULTS",
-    "QUICK_EPISODES",
-    "QUICK_OVERRIDES",
-    "RESULTS_CSV",
-    "RUN_JSON",
-    "TIMING_COLUMNS",
-    "EpisodeFailed",
-    "EpisodeJob",
-    "Interrupted",
-    "Plan",
-    "ResultsMismatchError",
-    "ResultsStore",
-    "Summary",
-    "canonical_spec",
-    "default_planners",
-    "describe_quick",
-    "episode_seeds",
-    "format_header",
-    "format_rows",
-    "make_plan",
-    "read_results",
-    "report_times",
-    "resolve_task",
-    "run_job",
-    "run_leaderboard",
-]
+__all__ = ["EpisodeFailed", "Interrupted", "Summary", "run_job", "run_leaderboard"]

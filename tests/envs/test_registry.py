@@ -53,7 +53,7 @@ def test_import_ipp_bench_registers_the_tasks():
 
 def test_training_seeds_never_meet_evaluation_seeds():
     """Every v1 training task plays episode seeds that no evaluation task (nor the leaderboard) can."""
-    from ipp_bench.eval.leaderboard import episode_seeds
+    from ipp_bench.eval.plan import episode_seeds
     train = [envs.TASKS[t].config.mission.episode_seeds for t in tagged("train")
              if {"v1", "v2"} & set(envs.TASKS[t].tags)]
     evals = [envs.TASKS[t].config.mission.episode_seeds for t in tagged("benchmark")]

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from ipp_bench.eval.leaderboard import RESULTS_CSV, TIMING_COLUMNS, make_plan, read_results, run_leaderboard
+from ipp_bench.eval.leaderboard import run_leaderboard
+from ipp_bench.eval.plan import make_plan
+from ipp_bench.eval.results import RESULTS_CSV, TIMING_COLUMNS, read_results
 
 TASKS = ("ipp_bench/Grid15Eval-v1", "ipp_bench/Grid20Eval-v1")
 PLANNERS = ("random", "coverage", "greedy", "mcts:simulations=3")

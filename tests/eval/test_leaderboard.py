@@ -19,10 +19,11 @@ from lb_helpers import (
 )
 
 import ipp_bench.eval.leaderboard as lb
-from ipp_bench.eval.leaderboard import (
+from ipp_bench.eval.results import (
     COLUMNS,
     RESULTS_CSV,
     ResultsMismatchError,
+    ResultsStore,
     read_results,
 )
 
@@ -229,7 +230,7 @@ def test_results_without_run_json_are_refused(reference_copy):
 
 
 def test_a_second_concurrent_run_is_refused(reference_copy):
-    with lb.ResultsStore(reference_copy, tiny_plan()), pytest.raises(ResultsMismatchError, match="in use"):
+    with ResultsStore(reference_copy, tiny_plan()), pytest.raises(ResultsMismatchError, match="in use"):
         run_tiny(reference_copy)
 
 
@@ -260,7 +261,7 @@ def test_a_run_that_loses_the_lock_never_touches_the_winners_folder(tmp_path, mo
 
     out = tmp_path / "new"
     plan = tiny_plan()
-    winner = lb.ResultsStore(out, plan)
+    winner = ResultsStore(out, plan)
     real_lock = results_module.ResultsStore._lock
 
     def lock_after_the_winner(self):
@@ -269,7 +270,7 @@ def test_a_run_that_loses_the_lock_never_touches_the_winners_folder(tmp_path, mo
         real_lock(self)
 
     monkeypatch.setattr(results_module.ResultsStore, "_lock", lock_after_the_winner)
-    loser = lb.ResultsStore(out, plan)
+    loser = ResultsStore(out, plan)
     with pytest.raises(ResultsMismatchError, match="in use by another leaderboard run"):
         loser.__enter__()
     assert loser._created and winner._created is False  # the loser made the folder

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from lb_helpers import PLANNERS
 
-from ipp_bench.eval.leaderboard import COLUMNS, RESULTS_CSV, format_header, format_rows
 from ipp_bench.eval.report import Aggregate, bootstrap_ci, markdown_table, write_report
+from ipp_bench.eval.results import COLUMNS, RESULTS_CSV, format_header, format_rows
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -46,6 +46,7 @@ from scipy import stats
 
 from ..data import write_atomically
 from ..envs import short_task_id
+from ..mission import REPORT_KEYS
 from ..planners import is_reference
 from .results import read_results
 
@@ -103,7 +104,7 @@ class Aggregate:
         self._by_seed: dict[tuple[str, str, float, str], dict[int, float]] = defaultdict(dict)
         for r in rows:
             task, planner, t = r["task"], r["planner"], float(r["time_s"])
-            for key in ("trace_roi", "rmse_roi", "uncertainty_reduction_pct", "rmse_reduction_pct"):
+            for key in REPORT_KEYS:
                 self.values[(task, planner, t, key)].append(float(r[key]))
                 self._by_seed[(task, planner, t, key)][int(r["seed"])] = float(r[key])
             self.runtime[(task, planner)][int(r["seed"])] = float(r["decision_time_mean_s"])

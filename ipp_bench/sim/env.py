@@ -44,6 +44,7 @@ class MuJoCoIPPEnv(GraphIPPEnv):
     ## Arguments
     ``gym.make("ipp_bench/MuJoCoWeed15-v0", **overrides)``: any :class:`IPPConfig` field by name;
     ``image_size`` (camera pixels, default 128) or ``sim=SimConfig(...)`` for the simulation;
+    ``airframe=`` a PyMJCF quadrotor in place of the shipped one (:mod:`ipp_bench.sim.scene`);
     ``render_mode="rgb_array"`` (chase view, downward camera, truth / mean / std panels).
     Needs ``pip install "ipp-bench[sim]"`` and EGL or OSMesa (``MUJOCO_GL``).
 
@@ -58,13 +59,13 @@ class MuJoCoIPPEnv(GraphIPPEnv):
 
     def __init__(self, config: IPPConfig | dict | None = None, render_mode: str | None = None,
                  task_id: str | None = None, sim: SimConfig | None = None, image_size: int | None = None,
-                 **overrides: Any):
+                 airframe=None, **overrides: Any):
         super().__init__(config, render_mode=render_mode, task_id=task_id, **overrides)
         sim = sim if sim is not None else self.default_sim()
         if image_size is not None:
             sim = sim.with_image_size(int(image_size))
         self.sim_config = sim
-        self.world = WeedWorld(self.config.grid, self.config.sensor, self.config.mission.speed, sim)
+        self.world = WeedWorld(self.config.grid, self.config.sensor, self.config.mission.speed, sim, airframe=airframe)
         self._chase = chase_camera(self.world.scene)
 
     def _make_mission(self, truth: np.ndarray, rng: np.random.Generator, start_xyz: np.ndarray) -> MuJoCoMission:

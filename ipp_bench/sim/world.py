@@ -109,16 +109,25 @@ class WeedWorld:
             its binning altitude and factor decide the read-out binning.
         speed: cruise speed [m/s].
         cfg: deployment settings.
+        airframe: a PyMJCF quadrotor to fly instead of the shipped one (see :mod:`ipp_bench.sim.scene`);
+            its camera's field of view must equal the sensor model's.
     """
 
     def __init__(self, grid: GridConfig, sensor: SensorConfig, speed: float = 2.0,
-                 cfg: SimConfig = SimConfig()) -> None:
+                 cfg: SimConfig = SimConfig(), airframe=None) -> None:
         self.grid, self.cfg, self.sensor_cfg = grid, cfg, sensor
         # one OpenCV thread per process, as for BLAS (ipp_bench._threads): on 2 shared cores a second
         # thread only waits for the first; parallelism comes from worker processes
         cv2.setNumThreads(1)
-        self.quad = QuadrotorParams(camera_fovy_deg=sensor.fov_deg, rotor_model=cfg.rotor_model)
-        self.scene = WeedScene(grid.rows, grid.cols, grid.resolution, self.quad, cfg.scene)
+        shipped = QuadrotorParams(camera_fovy_deg=sensor.fov_deg, rotor_model=cfg.rotor_model)
+        self.scene = WeedScene(grid.rows, grid.cols, grid.resolution, shipped, cfg.scene, airframe=airframe)
+        self.quad = self.scene.quad
+        if abs(self.quad.camera_fovy_deg - sensor.fov_deg) > 1e-9:
+            raise ValueError(f"airframe: camera 'down' has fovy {self.quad.camera_fovy_deg} deg, the sensor model "
+                             f"{sensor.fov_deg} deg (fov_deg): they must be equal")
+        if self.quad.rotor_model != cfg.rotor_model:
+            raise ValueError(f"airframe: its rotor actuators are the {self.quad.rotor_model!r} model, SimConfig.rotor_model "
+                             f"is {cfg.rotor_model!r} (filterexact dynamics: 'thrust'; none: 'speed')")
         self.flight = Flight(self.scene, speed=speed, cfg=cfg.flight, gains=cfg.gains,
                              disturbances=cfg.disturbances)
         self.renderer = SceneRenderer(self.scene)

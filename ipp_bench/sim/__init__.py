@@ -14,7 +14,9 @@ Modules (imports flow downwards):
   ``vision_v0``: the v0 per-pixel numpy pipeline.
 - ``world``: all of the above for one grid; ``mission``: :class:`MuJoCoMission` (its clock is the
   affordability oracle); ``env``: the gymnasium tasks ``ipp_bench/MuJoCoWeed15-v0`` / ``-v1``;
-  ``dmenv``: a ``dm_env`` view; ``calibrate``: the camera's noise model; ``video``: the demo video
+  ``dmenv``: :func:`load`, the dm_control environment (``control.Environment`` over the
+  env's ``control.Task`` face and the world's ``dm_control.mujoco.Physics``); ``viewer``: the
+  ``dm_control.viewer`` loader; ``calibrate``: the camera's noise model; ``video``: the demo video
   of an episode (``ipp-bench demo`` itself, which drives planners, is :mod:`ipp_bench.eval.demo`).
 
 Needs ``pip install "ipp-bench[sim]"`` and a system EGL or OSMesa (see ``gl``). Every module
@@ -22,3 +24,10 @@ takes mujoco from ``ipp_bench.sim.gl``, so the backend is chosen whichever modul
 first; this package file imports nothing, so that ``ipp_bench.eval.demo`` (the CLI's argument
 parser, which imports ``ipp_bench.sim.video``) loads without MuJoCo installed.
 """
+
+
+def load(task_id: str = "ipp_bench/MuJoCoWeed15-v1", **overrides):
+    """The deployment task ``task_id`` as a dm_control environment (:func:`ipp_bench.sim.dmenv.load`)."""
+    from ipp_bench.sim.dmenv import load as _load
+
+    return _load(task_id, **overrides)

@@ -1,7 +1,8 @@
 """Benchmark tasks: one TOML file per task in ``tasks/``, registered with gymnasium.
 
 A task file holds its id (``ipp_bench/<Name>-v<N>``), entry point, tags and the sections of an
-:class:`~ipp_bench.config.IPPConfig`. Registration is idempotent; ``tagged("benchmark")`` is the
+:class:`~ipp_bench.config.IPPConfig`; a deployment task also its ``[sim]`` table (read here, passed
+to the env as ``sim_section``, validated by ``ipp_bench.sim``, which this module never imports). Registration is idempotent; ``tagged("benchmark")`` is the
 set the leaderboard runs (dm_control's habit of deriving benchmark sets from tags).
 """
 
@@ -37,6 +38,8 @@ class TaskSpec:
     description: str
     config: IPPConfig
     source: str
+    #: the task's ``[sim]`` table as read (deployment tasks; the sim package validates it)
+    sim: dict | None = None
 
 
 def _load(path) -> TaskSpec:
@@ -51,8 +54,11 @@ def _load(path) -> TaskSpec:
         config = IPPConfig.from_dict(data["config"])
     except ValueError as err:
         raise ValueError(f"task file {path}: {err}") from None
+    sim = data.get("sim")
+    if sim is not None and not isinstance(sim, dict):
+        raise ValueError(f"task file {path}: [sim] must be a table, got {sim!r}")
     return TaskSpec(data["id"], data["entry_point"], tuple(data.get("tags", ())),
-                    data.get("description", "").strip(), config, str(path))
+                    data.get("description", "").strip(), config, str(path), sim)
 
 
 def _discover() -> dict[str, TaskSpec]:
@@ -88,8 +94,11 @@ def register_all() -> None:
     for spec in TASKS.values():
         if spec.id in gym.registry:
             continue
+        kwargs = {"env_class": spec.entry_point, "config": spec.config, "task_id": spec.id}
+        if spec.sim is not None:
+            kwargs["sim_section"] = spec.sim
         gym.register(id=spec.id, entry_point=f"{__name__}:make_task_env",
-                     kwargs={"env_class": spec.entry_point, "config": spec.config, "task_id": spec.id},
+                     kwargs=kwargs,
                      disable_env_checker=True, order_enforce=False)
 
 
@@ -123,8 +132,26 @@ def task_config(task_id: str, overrides: dict[str, Any] | None = None) -> IPPCon
     Raises:
         ValueError: unknown task, or an override that names no field or has a bad value.
     """
-    config = task_spec(task_id).config
-    return config.replace(**overrides) if overrides else config
+    spec = task_spec(task_id)
+    config = spec.config
+    if not overrides:
+        return config
+    sim = sim_fields(spec)
+    try:
+        return config.replace(**{k: v for k, v in overrides.items() if k not in sim})
+    except ValueError as err:
+        if sim and str(err).startswith("unknown config field"):
+            raise ValueError(f"{err}; or a [sim] field of {spec.id}: {sorted(sim)}") from None
+        raise
+
+
+def sim_fields(spec: TaskSpec) -> set[str]:
+    """The field names of a task's ``[sim]`` table (its own keys and its sub-tables' keys): the
+    simulation settings ``--env`` may override; the env validates their values."""
+    names: set[str] = set()
+    for key, value in (spec.sim or {}).items():
+        names.update(value) if isinstance(value, dict) else names.add(key)
+    return names
 
 
 def parse_overrides(items: Iterable[str]) -> dict[str, Any]:

@@ -33,7 +33,7 @@ from ipp_bench.envs.graph import GraphIPPEnv
 from ipp_bench.envs.panels import render_mission
 from ipp_bench.sim.mission import MuJoCoMission
 from ipp_bench.sim.render import azimuth_to_centre, chase_camera
-from ipp_bench.sim.world import SimConfig, WeedWorld
+from ipp_bench.sim.world import SimConfig, WeedWorld, sim_field_owners
 
 
 def _spec_of(name: str, space) -> specs.Array:
@@ -70,30 +70,51 @@ class MuJoCoIPPEnv(GraphIPPEnv, control.Task):
     Terminated when no neighbour is affordable (or the flight used up the budget). Never truncated.
 
     ## Arguments
-    ``gym.make("ipp_bench/MuJoCoWeed15-v0", **overrides)``: any :class:`IPPConfig` field by name;
-    ``image_size`` (camera pixels, default 128) or ``sim=SimConfig(...)`` for the simulation;
+    ``gym.make("ipp_bench/MuJoCoWeed15-v0", **overrides)``: any :class:`IPPConfig` field by name,
+    any :class:`~ipp_bench.sim.world.SimConfig` leaf field by name (``image_size=480``,
+    ``wind_max=2.0``, ``mode="stop"``; the task file's ``[sim]`` table is the default), or
+    ``sim=SimConfig(...)`` in place of the task file's table;
     ``airframe=`` a PyMJCF quadrotor in place of the shipped one (:mod:`ipp_bench.sim.scene`);
     ``render_mode="rgb_array"`` (chase view, downward camera, truth / mean / std panels).
     Needs ``pip install "ipp-bench[sim]"`` and EGL or OSMesa (``MUJOCO_GL``).
 
     ## Version History
-    - v0: initial release.
+    - v1 (``tasks/mujoco_weed15_v1.toml``: the same class, its ``[sim]`` table): the v0 task with a
+      realistic deployment (the :class:`~ipp_bench.sim.world.SimConfig` defaults):
+      a 320 x 320 camera (2.9 cm ground sampling distance at 8 m, 5.1 cm at 14 m, read out 2 x 2
+      binned above 10 m) with lens blur, motion blur where the image moves, shot and read noise, and
+      per-episode sun direction, exposure and white-balance errors; plant margins whose colours mix
+      with the soil's. The frame goes through OpenCV (HSV threshold, closing, homography onto the
+      ground with the *estimated* pose, area resampling to cells) and the measurement z is what
+      that pipeline estimates: no synthetic noise is added. The camera's error is mostly persistent,
+      so the belief carries it as states (:class:`~ipp_bench.belief.PersistentErrorBelief`: a
+      per-cell error per resolution factor, plus white noise, both larger in part-weed cells); the
+      constants of the task file are fitted to the pipeline by ``python -m ipp_bench.sim.calibrate``.
+      The drone flies through waypoints without stopping (velocity-continuous legs at up to 2 m/s,
+      slowing only where a leg turns back), in a per-episode wind with gusts, controlled from an
+      estimated state (GPS-like bias and noise, attitude noise).
+    - v0: initial release (``tasks/mujoco_weed15_v0.toml``: ideal 128 px camera, the sensor model's
+      noise added, stop at every waypoint, no wind, perfect state).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
-    #: the simulation settings of this version (v0: ideal camera + synthetic noise, stop-and-go flight)
-    default_sim = staticmethod(SimConfig.v0)
-
     def __init__(self, config: IPPConfig | dict | None = None, render_mode: str | None = None,
-                 task_id: str | None = None, sim: SimConfig | None = None, image_size: int | None = None,
+                 task_id: str | None = None, sim: SimConfig | None = None, sim_section: dict | None = None,
                  airframe=None, **overrides: Any):
-        super().__init__(config, render_mode=render_mode, task_id=task_id, **overrides)
-        sim = sim if sim is not None else self.default_sim()
-        if image_size is not None:
-            sim = sim.with_image_size(int(image_size))
-        self.sim_config = sim
-        self.world = WeedWorld(self.config.grid, self.config.sensor, self.config.mission.speed, sim, airframe=airframe)
+        sim_names = sim_field_owners()
+        sim_overrides = {k: overrides.pop(k) for k in list(overrides) if k in sim_names}
+        try:
+            super().__init__(config, render_mode=render_mode, task_id=task_id, **overrides)
+        except ValueError as err:
+            if str(err).startswith("unknown config field"):
+                raise ValueError(f"{err}; or a sim field: {sorted(sim_names)}") from None
+            raise
+        if sim is None:
+            sim = SimConfig.from_dict(sim_section) if sim_section is not None else SimConfig()
+        self.sim_config = sim.replace(**sim_overrides) if sim_overrides else sim
+        self.world = WeedWorld(self.config.grid, self.config.sensor, self.config.mission.speed, self.sim_config,
+                               airframe=airframe)
         self._chase = chase_camera(self.world.scene)
 
     def _make_mission(self, truth: np.ndarray, rng: np.random.Generator, start_xyz: np.ndarray) -> MuJoCoMission:
@@ -187,40 +208,5 @@ class MuJoCoIPPEnv(GraphIPPEnv, control.Task):
                              "build the environment with ipp_bench.sim.load()")
 
 
-class MuJoCoIPPEnvV1(MuJoCoIPPEnv):
-    """``ipp_bench/MuJoCoWeed15-v1``: the camera is the sensor, the drone flies like one.
-
-    ## Description
-    The v0 task with a realistic deployment (:class:`~ipp_bench.sim.world.SimConfig` defaults):
-    a 320 x 320 camera (2.9 cm ground sampling distance at 8 m, 5.1 cm at 14 m, read out 2 x 2
-    binned above 10 m) with lens blur, motion blur where the image moves, shot and read noise, and
-    per-episode sun direction, exposure and white-balance errors; plant margins whose colours mix
-    with the soil's. The frame goes through OpenCV (HSV threshold, closing, homography onto the
-    ground with the *estimated* pose, area resampling to cells) and the measurement z is what
-    that pipeline estimates: no synthetic noise is added. The camera's error is mostly persistent,
-    so the belief carries it as states (:class:`~ipp_bench.belief.PersistentErrorBelief`: a
-    per-cell error per resolution factor, plus white noise, both larger in part-weed cells); the
-    constants of the task file are fitted to the pipeline by ``python -m ipp_bench.sim.calibrate``.
-    The drone flies through waypoints without stopping (velocity-continuous legs at up to 2 m/s,
-    slowing only where a leg turns back), in a per-episode wind with gusts, controlled from an
-    estimated state (GPS-like bias and noise, attitude noise).
-
-    ## Action Space
-    As v0; ``action_masks()`` asks the mission's affordability oracle (exact leg durations of
-    the continuous flight from the current velocity).
-
-    ## Observation Space, Rewards, Episode End
-    As v0. Mission time is the sum of the flown legs' durations.
-
-    ## Arguments
-    As v0; ``sim=SimConfig(...)`` overrides the deployment settings (e.g.
-    ``SimConfig(measurement="truth")`` replaces the camera's values by the ground truth).
-
-    ## Version History
-    - v1: camera as the sensor (no synthetic noise; the camera's error model fitted to it, its
-      persistent part as belief states), realistic image formation, OpenCV pipeline, continuous
-      flight, wind, state estimation.
-    - v0: initial release.
-    """
-
-    default_sim = staticmethod(SimConfig)
+#: former name of the v1 entry point: both versions are :class:`MuJoCoIPPEnv`, their task files differ
+MuJoCoIPPEnvV1 = MuJoCoIPPEnv

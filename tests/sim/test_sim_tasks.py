@@ -66,3 +66,20 @@ def test_bad_sim_tables_are_refused_naming_the_key():
         SimConfig.from_dict({"wind": 3})
     with pytest.raises(ValueError, match=r"\[sim.flight\] must be a table"):
         SimConfig.from_dict({"flight": "stop"})
+
+
+def test_the_platform_is_the_tasks_flight_mode():
+    from ipp_bench.sim.mission import ContinuousFlight, StopAndGoFlight
+
+    for task, mode, cls in (("ipp_bench/MuJoCoWeed15-v1", None, ContinuousFlight),
+                            ("ipp_bench/MuJoCoWeed15-v1", "stop", StopAndGoFlight),
+                            ("ipp_bench/MuJoCoWeed15-v0", None, StopAndGoFlight)):
+        env = gym.make(task, budget_s=12.0, **({"mode": mode} if mode else {})).unwrapped
+        env.reset(seed=0)
+        assert type(env.mission.platform) is cls
+        # the core mission books what the platform flew: one leg, its clock, its read-outs, NIS per update
+        mask = env.action_masks()
+        env.step(int(mask.nonzero()[0][0]))
+        m = env.mission
+        assert len(m.path) == 2 and m.time_s > 0 and len(m.nis_log) == len(m.update_log) >= 1
+        env.close()

@@ -385,5 +385,5 @@ def belief_model(field: GPBelief, sensor) -> "WhiteNoiseBelief | PersistentError
 
 
 
-__all__ = ["GPBelief", "PersistentErrorBelief", "WhiteNoiseBelief", "belief_model", "cell_centres", "matern32", "normalised_innovation", "prior_covariance",
-           "value_scale"]
+__all__ = ["GPBelief", "PersistentErrorBelief", "WhiteNoiseBelief", "belief_model", "cell_centres", "matern32",
+           "normalised_innovation", "prior_covariance", "value_scale"]

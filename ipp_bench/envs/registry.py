@@ -2,8 +2,9 @@
 
 A task file holds its id (``ipp_bench/<Name>-v<N>``), entry point, tags and the sections of an
 :class:`~ipp_bench.config.IPPConfig`; a deployment task also its ``[sim]`` table (read here, passed
-to the env as ``sim_section``, validated by ``ipp_bench.sim``, which this module never imports). Registration is idempotent; ``tagged("benchmark")`` is the
-set the leaderboard runs (dm_control's habit of deriving benchmark sets from tags).
+to the env as ``sim_section``, validated by ``ipp_bench.sim``, which this module never imports).
+Registration is idempotent; ``tagged("benchmark")`` is the set the leaderboard runs (dm_control's
+habit of deriving benchmark sets from tags).
 """
 
 from __future__ import annotations

@@ -211,10 +211,11 @@ def airframe_params(model, prefix: str = "quad/", thrust_coeff: float = Quadroto
     if len(set(filt)) != 1:
         raise ValueError("airframe: the four rotor actuators must share one dyntype")
     cam = need(mujoco.mjtObj.mjOBJ_CAMERA, "down")
+    tau = float(model.actuator_dynprm[acts[0]][0]) if filt[0] else QuadrotorParams.motor_time_constant
     return QuadrotorParams(
         mass=mass, inertia=tuple(float(v) for v in model.body_inertia[body]), arm_length=arm,
         max_thrust=float(model.actuator_ctrlrange[acts[0]][1]), yaw_moment_coeff=k_m,
-        motor_time_constant=float(model.actuator_dynprm[acts[0]][0]) if filt[0] else QuadrotorParams.motor_time_constant,
+        motor_time_constant=tau,
         rotor_model="thrust" if filt[0] else "speed", thrust_coeff=thrust_coeff,
         camera_fovy_deg=float(model.cam_fovy[cam]), camera_offset_z=float(model.cam_pos[cam][2]))
 

@@ -170,7 +170,8 @@ class WeedScene:
                                       for i in range(4)])
         adr, h, w = m.tex_adr[self.texture_id], m.tex_height[self.texture_id], m.tex_width[self.texture_id]
         if int(m.tex_nchannel[self.texture_id]) != 3:
-            raise RuntimeError(f"the weed_field texture compiled with {m.tex_nchannel[self.texture_id]} channels, not 3")
+            raise RuntimeError(f"the weed_field texture compiled with {m.tex_nchannel[self.texture_id]} "
+                               "channels, not 3")
         self._tex_view = m.tex_data[adr: adr + h * w * 3].reshape(h, w, 3)
         self.texture_version = 0  # bumped on every set_ground; renderers re-upload when it changes
 

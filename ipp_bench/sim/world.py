@@ -103,8 +103,9 @@ class SimConfig:
             elif key in sim_field_owners() and sim_field_owners()[key] == "":
                 top[key] = _coerce(getattr(base, key), value, f"sim.{key}")
             else:
-                raise ValueError(f"unknown [sim] key {key!r}: valid are {sorted(k for k, o in sim_field_owners().items() if o == '')}"
-                                 f" and the tables {list(SIM_SECTIONS)}")
+                top_level = sorted(k for k, o in sim_field_owners().items() if o == "")
+                raise ValueError(f"unknown [sim] key {key!r}: valid are {top_level} and the tables "
+                                 f"{list(SIM_SECTIONS)}")
         return dataclasses.replace(base, **subs, **top)
 
     def replace(self, **overrides) -> "SimConfig":
@@ -216,8 +217,9 @@ class WeedWorld:
             raise ValueError(f"airframe: camera 'down' has fovy {self.quad.camera_fovy_deg} deg, the sensor model "
                              f"{sensor.fov_deg} deg (fov_deg): they must be equal")
         if self.quad.rotor_model != cfg.rotor_model:
-            raise ValueError(f"airframe: its rotor actuators are the {self.quad.rotor_model!r} model, SimConfig.rotor_model "
-                             f"is {cfg.rotor_model!r} (filterexact dynamics: 'thrust'; none: 'speed')")
+            raise ValueError(f"airframe: its rotor actuators are the {self.quad.rotor_model!r} model, "
+                             f"SimConfig.rotor_model is {cfg.rotor_model!r} (filterexact dynamics: 'thrust'; "
+                             "none: 'speed')")
         self.flight = Flight(self.scene, speed=speed, cfg=cfg.flight, gains=cfg.gains,
                              disturbances=cfg.disturbances)
         self.renderer = SceneRenderer(self.scene)

@@ -78,10 +78,10 @@ def main(argv: list[str] | None = None) -> int:
                          f"{'yes' if same else '**no**'} |")
     lines += ["", f"The twin orders {agree} of the {total} separated pairs as MuJoCo does."]
     text = "\n".join(lines) + "\n"
-    print(text)
     if args.out:
         with open(args.out, "w", encoding="utf-8") as fh:
             fh.write(text)
+    print(text)
     return 0
 
 

@@ -53,7 +53,7 @@ def test_load_is_a_dm_control_environment_over_one_core():
     # named reads of the physics see the flown drone
     flown = env.physics.named.data.qpos[task.world.scene.joint_name][:3]
     assert np.linalg.norm(flown - start) > 1.0
-    frame = env.physics.render(48, 48, camera_id=f"quad/down")
+    frame = env.physics.render(48, 48, camera_id="quad/down")
     assert frame.shape == (48, 48, 3) and frame.std() > 0
     env.close()
 

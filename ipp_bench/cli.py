@@ -13,8 +13,10 @@ A subcommand's module is imported only when that subcommand runs, so ``ipp-bench
 never imports torch or mujoco for itself (a planner that needs torch imports it when it is built).
 Bad arguments (unknown task or planner, a bad planner setting, results of other arguments in
 ``--out``, an unwritable path, no Ray cluster) end with the library's message and exit status 2,
-without a traceback, before any episode runs. Ctrl-C (and SIGTERM during a leaderboard) ends with
-one line and exit status 130; a leaderboard keeps its finished episodes and resumes on a rerun.
+without a traceback, before any episode runs. Ctrl-C ends with one line and exit status 130 (SIGTERM
+during a leaderboard: 143); a leaderboard keeps its finished episodes and resumes on a rerun. An
+episode that fails part-way (its planner raised, its worker died, a full disk) ends the leaderboard
+with one line naming it and exit status 1; the finished episodes are kept.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
 import os
 import shlex
 import signal
@@ -31,7 +34,9 @@ from collections.abc import Sequence
 from . import __version__
 
 EXIT_USAGE = 2
+EXIT_FAILED = 1  # an episode failed part-way (finished ones are kept)
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
+EXIT_TERMINATED = 143  # 128 + SIGTERM
 
 # subcommand -> (module, add_arguments, run, extra)
 _DELEGATED = {
@@ -60,18 +65,23 @@ def build_parser() -> argparse.ArgumentParser:
                    description="List the registered tasks with their tags.")
 
     fp = sub.add_parser("fit-prior", help="fit a task's GP prior to its field family (log marginal likelihood)",
-                        description="Fit the Matern 3/2 prior (length scale, signal variance, nugget; mean fixed) "
-                                    "to independent maps of the task's field family by maximising the log "
-                                    "marginal likelihood, as the paper did (Section V-A).")
+                        description="Fit the Matern 3/2 prior (length scale, signal variance, nugget; the mean "
+                                    "fixed at the task's, or fitted with --fit-mean) to independent maps of the "
+                                    "task's field family by maximising the log marginal likelihood, as the paper "
+                                    "did (Section V-A).")
     fp.add_argument("--task", required=True, help="task id, e.g. ipp_bench/Grid15Eval-v1 (prefix optional)")
     fp.add_argument("--maps", type=int, default=None, help="independent maps to fit on (default 40)")
     fp.add_argument("--seed", type=int, default=None, help="seed of the fitting maps (default: the fixed fit seed)")
+    fp.add_argument("--fit-mean", action="store_true",
+                    help="fit the prior mean too (generalised least squares; sparse fields such as weed patches "
+                         "average far below the paper's 0.5)")
     fp.add_argument("--write", action="store_true",
                     help="write the fitted values into the task's TOML file, with this command as a comment")
 
     ev = sub.add_parser("evaluate", help="run one episode and print its metrics",
                         description="Run one episode of one planner on one task and print its metrics.")
-    ev.add_argument("--task", required=True, help="task id, e.g. ipp_bench/Grid15Eval-v0 (prefix optional)")
+    ev.add_argument("--task", required=True,
+                    help="task id, e.g. ipp_bench/Grid15Eval-v1 (prefix optional), or a task file path/to/mine.toml")
     ev.add_argument("--planner", required=True, help="planner spec, e.g. greedy or mcts:simulations=50")
     ev.add_argument("--seed", type=int, default=0, help="episode seed (field, start, sensor noise); default 0")
     ev.add_argument("--render", metavar="PNG", help="save the final render of the episode to this PNG")
@@ -83,7 +93,8 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Run the leaderboard: every planner on every task over the same episode "
                                     "seeds; writes results.csv, leaderboard.md, plots and run.json to --out. "
                                     "Resumable: rerun the same command to complete an interrupted run.")
-    lb.add_argument("--tasks", nargs="+", metavar="TASK", help="task ids (default: all tagged 'benchmark')")
+    lb.add_argument("--tasks", nargs="+", metavar="TASK",
+                    help="task ids or task files path/to/mine.toml (default: all tagged 'benchmark')")
     lb.add_argument("--planners", nargs="+", metavar="SPEC",
                     help="planner specs such as greedy or mcts:simulations=50, separated by spaces or commas "
                          "(default: every registered planner that can be built here; the others are named)")
@@ -98,8 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="few episodes and cheaper look-ahead settings: minutes on 2 cores")
     lb.add_argument("--env", metavar="KEY=VALUE", action="append", default=[],
                     help="override a config field of every task, e.g. --env budget_s=100 (repeatable)")
-    lb.add_argument("--reference", default="greedy", metavar="SPEC",
-                    help="planner the report compares every other one with, episode by episode (default greedy)")
+    lb.add_argument("--reference", default=None, metavar="SPEC",
+                    help="planner the report compares every other one with, episode by episode (default greedy, "
+                         "when it runs); it must be one of the run's planners")
     progress = lb.add_mutually_exclusive_group()
     progress.add_argument("--progress", dest="progress", action="store_true", default=None,
                           help="always show a progress bar")
@@ -116,7 +128,10 @@ def build_parser() -> argparse.ArgumentParser:
 # subcommands
 # --------------------------------------------------------------------------------------------------
 def cmd_tasks(args: argparse.Namespace) -> int:
-    from .envs import TASKS
+    from .envs import TASK_FILE_ERRORS, TASKS
+
+    for error in TASK_FILE_ERRORS:
+        print(f"skipped task file {error}", file=sys.stderr)
 
     width = max(len(t) for t in TASKS) if TASKS else 0
     tag_width = max((len(", ".join(s.tags)) for s in TASKS.values()), default=1)
@@ -144,23 +159,36 @@ def cmd_fit_prior(args: argparse.Namespace) -> int:
     except ValueError as err:
         return _error(str(err))
     cfg = spec.config
+    mean_text = "prior mean fitted" if args.fit_mean else f"prior mean {cfg.gp.prior_mean:g} fixed"
     print(f"{spec.id}: fitting a Matern 3/2 prior to {maps} {cfg.mission.field} maps of "
-          f"{cfg.grid.rows} x {cfg.grid.cols} cells (seed {seed}, prior mean {cfg.gp.prior_mean:g} fixed)", flush=True)
-    fit = gp_fit.fit_prior(cfg, maps, seed)
-    held = gp_fit.held_out_lml(cfg, fit.length_scale, fit.signal_variance, fit.nugget)
+          f"{cfg.grid.rows} x {cfg.grid.cols} cells (seed {seed}, {mean_text})", flush=True)
+    fit = gp_fit.fit_prior(cfg, maps, seed, fit_mean=args.fit_mean)
+    held = gp_fit.held_out_lml(cfg, fit.length_scale, fit.signal_variance, fit.nugget, prior_mean=fit.prior_mean)
     task_gp = cfg.gp
     held_task = gp_fit.held_out_lml(cfg, task_gp.length_scale, task_gp.signal_variance, max(task_gp.nugget, 1e-9))
+    mean_line = f"  prior_mean      {fit.prior_mean:.4g} (fitted)\n" if args.fit_mean else ""
     print(f"  length_scale    {fit.length_scale:.4g} m\n  signal_variance {fit.signal_variance:.4g}\n"
-          f"  nugget          {fit.nugget:.4g}\n  log marginal likelihood per map: {fit.lml_per_map:.2f} (fit maps), "
+          f"  nugget          {fit.nugget:.4g}\n{mean_line}  log marginal likelihood per map: {fit.lml_per_map:.2f} (fit maps), "
           f"{held:.2f} (held-out maps; the task file's current prior: {held_task:.2f})")
     if fit.length_scale > 100.0 and fit.nugget > fit.signal_variance:
         print("  note: the maps have no spatial structure at this scale (the nugget holds the variance)")
     if args.write:
         command = f"ipp-bench fit-prior --task {spec.id}" + ("" if args.maps is None else f" --maps {maps}") \
-            + ("" if args.seed is None else f" --seed {seed}") + " --write"
+            + ("" if args.seed is None else f" --seed {seed}") + (" --fit-mean" if args.fit_mean else "") + " --write"
         gp_fit.write_gp_section(spec.source, fit, command)
         print(f"wrote [config.gp] of {spec.source}")
     return 0
+
+
+def _finite_or_none(value):
+    """``value`` with every non-finite float replaced by None (JSON has no NaN or Infinity)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_none(v) for v in value]
+    return value
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -177,19 +205,26 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if args.seed < 0:
             raise ValueError(f"--seed {args.seed} is invalid: expected an integer >= 0")
         if args.render:
+            from .eval.figure import require_figure
+
             check_output_file(args.render, "--render", suffix=".png")
+            require_figure()  # before the episode, not after it
         spec = canonical_spec(args.planner)
-        make_planner(spec)  # a planner that cannot be built here fails now, with its message
+        planner = make_planner(spec)  # a planner that cannot be built here fails now, with its message
+        from .eval.runner import make_env, run_episode
+        from .planners.episode import start_episode
+
+        task_env = make_env(task, **env)
+        start_episode(task_env, planner, args.seed)  # what the episode's start refuses, refused now
     except (ValueError, ImportError) as err:
         return _error(str(err))
-    from .eval.runner import run_episode
 
     try:
-        result = run_episode(task, spec, args.seed, render_path=args.render, **env)
+        result = run_episode(task, spec, args.seed, env=task_env, render_path=args.render)
     except ValueError as err:  # e.g. a budget that pays for no first move
         return _error(str(err))
-    if args.json:
-        print(json.dumps(result.to_dict(), indent=2))
+    if args.json:  # strict JSON: a metric that is not a number (no ROI, say) is null, never NaN
+        print(json.dumps(_finite_or_none(result.to_dict()), indent=2, allow_nan=False))
         return 0
     print(f"{task}  planner {spec}  seed {args.seed}")
     print(f"{'time [s]':>9} {'ROI trace':>11} {'ROI RMSE':>9} {'uncertainty red.':>17} {'RMSE red.':>10}")
@@ -206,23 +241,53 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _sigterm_as_interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
+def _reference(reference: str | None, planners: Sequence[str]) -> str | None:
+    """The report's reference planner: ``--reference`` must name one of the run's planners; without
+    it, greedy where it runs (else the report says there is no paired comparison)."""
+    from .eval.report import DEFAULT_REFERENCE, resolve_reference
+
+    if reference is None:
+        return DEFAULT_REFERENCE
+    if not reference.strip() or resolve_reference(reference.strip(), planners) is None:
+        raise ValueError(f"--reference {reference!r} names no planner of this run: valid are {list(planners)}")
+    return reference.strip()
+
+
+class _SigtermAsInterrupt:
+    """SIGTERM handler: stop like Ctrl-C (KeyboardInterrupt), remembering that it was SIGTERM."""
+
+    received = False
+
+    def __call__(self, signum, frame) -> None:
+        self.received = True
+        raise KeyboardInterrupt
 
 
 def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
-    from .data import check_output_dir
+    from .data import OutputWriteError, check_output_dir
     from .envs import parse_overrides
     from .eval.executors import ExecutorError, check_executor_args, default_backend
-    from .eval.leaderboard import Interrupted, ResultsMismatchError, describe_quick, make_plan, run_leaderboard
+    from .eval.leaderboard import (
+        EpisodeFailed,
+        Interrupted,
+        ResultsMismatchError,
+        describe_quick,
+        make_plan,
+        run_leaderboard,
+    )
     from .planners import split_specs
 
     if args.quick:
         print(describe_quick(), flush=True)
     try:
         check_output_dir(args.out)
-        plan = make_plan(args.tasks, split_specs(args.planners) if args.planners else None, args.episodes,
+        specs = split_specs(args.planners) if args.planners is not None else None
+        if specs is not None and not specs:
+            raise ValueError(f"--planners {' '.join(args.planners)!r} names no planner: pass planner specs "
+                             "(e.g. --planners random greedy), or leave --planners out for every planner")
+        plan = make_plan(args.tasks, specs, args.episodes,
                          args.seed, args.quick, parse_overrides(args.env), log=lambda m: print(m, flush=True))
+        reference = _reference(args.reference, plan.planners)
         backend = args.backend or ("ray" if args.address else default_backend(args.workers))
         check_executor_args(backend, args.workers, args.address)  # e.g. the ray extra, before anything runs
     except (ValueError, ImportError) as err:
@@ -231,14 +296,18 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
           f"episodes: {plan.episodes} per task and planner, seed {plan.seed}"
           + (f", env overrides {plan.env_overrides}" if plan.env_overrides else ""), flush=True)
     command = "ipp-bench " + " ".join(shlex.quote(a) for a in argv)
-    previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)  # SIGTERM stops like Ctrl-C
+    sigterm = _SigtermAsInterrupt()
+    previous = signal.signal(signal.SIGTERM, sigterm)  # SIGTERM stops like Ctrl-C
     try:
         summary = run_leaderboard(plan, args.out, backend=backend, workers=args.workers, address=args.address,
-                                  progress=args.progress, command=command, reference=args.reference,
+                                  progress=args.progress, command=command, reference=reference,
                                   log=lambda m: print(m, flush=True))
     except Interrupted as err:
         print(f"ipp-bench: {err}", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return EXIT_TERMINATED if sigterm.received else EXIT_INTERRUPTED
+    except (EpisodeFailed, OutputWriteError) as err:
+        print(f"ipp-bench: error: {err}", file=sys.stderr)
+        return EXIT_FAILED
     except (ResultsMismatchError, ExecutorError, ImportError, ValueError) as err:
         return _error(str(err))
     finally:

@@ -13,7 +13,7 @@ import dataclasses
 import math
 import numbers
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 FIELD_FAMILIES = ("bernoulli", "regions", "weed_patches")
 #: [s] the one tolerance of mission-time comparisons: a leg that overruns the remaining budget by
@@ -31,17 +31,51 @@ def cell_centre(index: Any, resolution: float) -> Any:
     return (index + 0.5) * resolution
 
 
+# -- the validation helpers of every config (task sections, planner settings) ---------------------
+def invalid(where: str, value: Any, valid: str) -> NoReturn:
+    """Raise the suite's one error for a bad setting: ``where = value is invalid: expected valid``."""
+    raise ValueError(f"{where} = {value!r} is invalid: expected {valid}")
+
+
+def _range_text(low: float | None, high: float | None, low_open: bool, high_open: bool) -> str:
+    if low is not None and high is not None:
+        return f"in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+    if low is not None:
+        return f"{'>' if low_open else '>='} {low:g}"
+    if high is not None:
+        return f"{'<' if high_open else '<='} {high:g}"
+    return ""
+
+
+def check_number(where: str, value: Any, low: float | None = None, high: float | None = None, *,
+                 low_open: bool = False, high_open: bool = False, unit: str = "") -> float:
+    """``value`` as a float if it is a finite real number within the bounds (open or closed), else
+    :func:`invalid` naming the range. Strings and booleans are refused."""
+    rng = _range_text(low, high, low_open, high_open)
+    valid = f"a finite number {rng}".rstrip() + (f" [{unit}]" if unit else "")
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        invalid(where, value, valid + " (not a string or a bool)")
+    v = float(value)
+    if (not math.isfinite(v) or (low is not None and (v <= low if low_open else v < low))
+            or (high is not None and (v >= high if high_open else v > high))):
+        invalid(where, value, valid)
+    return v
+
+
+def check_integer(where: str, value: Any, low: int, high: int | None = None) -> int:
+    """``value`` as an int if it is an integer (not a bool) in [low, high], else :func:`invalid`."""
+    ok = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if not ok or value < low or (high is not None and value > high):
+        invalid(where, value, f"an integer {_range_text(low, high, False, False)}")
+    return int(value)
+
+
 def _fail(section: str, name: str, value: Any, valid: str) -> None:
-    raise ValueError(f"{section}.{name} = {value!r} is invalid: expected {valid}")
+    invalid(f"{section}.{name}", value, valid)
 
 
 def _finite(section: str, name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        _fail(section, name, value, "a finite number (not a string or a bool)")
-    v = float(value)
-    if not math.isfinite(v):
-        _fail(section, name, value, "a finite number")
-    return v
+    return check_number(f"{section}.{name}", value)
 
 
 def _plain(obj: Any, *names: str) -> None:
@@ -53,15 +87,11 @@ def _plain(obj: Any, *names: str) -> None:
 
 
 def _positive(section: str, name: str, value: Any) -> None:
-    if _finite(section, name, value) <= 0:
-        _fail(section, name, value, "a finite number > 0")
+    check_number(f"{section}.{name}", value, 0.0, low_open=True)
 
 
 def _integer(section: str, name: str, value: Any, low: int, high: int | None = None) -> None:
-    ok = isinstance(value, numbers.Integral) and not isinstance(value, bool)
-    if not ok or value < low or (high is not None and value > high):
-        rng = f">= {low}" if high is None else f"in [{low}, {high}]"
-        _fail(section, name, value, f"an integer {rng}")
+    check_integer(f"{section}.{name}", value, low, high)
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ checkout or an editable install they are the top-level folders of the repository
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 _PACKAGE = Path(__file__).resolve().parent
@@ -28,8 +29,11 @@ def check_output_dir(folder: str | Path, what: str = "--out") -> Path:
     """``folder`` as a Path, if it exists as a writable folder or can be created (nothing is created).
 
     Raises:
-        ValueError: a file is in the way, or the first existing folder on the way is not writable.
+        ValueError: an empty path, a file in the way, or the first existing folder on the way is
+            not writable.
     """
+    if not str(folder).strip():  # Path("") is the current folder: never what was meant
+        raise ValueError(f"{what} {str(folder)!r} is empty: expected a folder path")
     folder = Path(folder)
     existing = next((p for p in (folder, *folder.parents) if p.exists()), None)
     if existing is not None and not existing.is_dir():
@@ -45,6 +49,8 @@ def check_output_file(path: str | Path, what: str, suffix: str | None = None) ->
     Raises:
         ValueError: wrong suffix, ``path`` is a folder, or its folder cannot be written.
     """
+    if not str(path).strip():
+        raise ValueError(f"{what} {str(path)!r} is empty: expected a file path")
     path = Path(path)
     if suffix is not None and path.suffix.lower() != suffix:
         raise ValueError(f"{what} {str(path)!r} is invalid: expected a {suffix} file")
@@ -53,4 +59,32 @@ def check_output_file(path: str | Path, what: str, suffix: str | None = None) ->
     if path.exists() and not os.access(path, os.W_OK):
         raise ValueError(f"{what} {path} cannot be written: the file is read-only")
     check_output_dir(path.parent, what=f"{what} {path}: the folder")
+    return path
+
+
+class OutputWriteError(OSError):
+    """A file could not be written (full disk, quota, ...): the message names it and the cause."""
+
+
+def write_atomically(path: str | Path, write: Callable[[Path], None]) -> Path:
+    """Write ``path`` through ``write(tmp)`` into a temporary sibling (same suffix), then rename it
+    into place: ``path`` is complete or untouched, never truncated. On failure (a full disk, say)
+    the temporary file is removed.
+
+    Raises:
+        OutputWriteError: naming ``path`` and the cause.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    try:
+        write(tmp)
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as err:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise OutputWriteError(f"cannot write {path}: {err.strerror or err}") from None
     return path

@@ -207,7 +207,7 @@ def test_sigterm_leaves_no_child_behind_and_a_rerun_completes(tmp_path, sig):
     output = proc.stdout.read()
     assert "Traceback" not in output
     if sig == signal.SIGTERM:
-        assert "episodes kept in" in output
+        assert "episodes kept in" in output and proc.returncode == 143
     rerun = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=180)
     assert rerun.returncode == 0, rerun.stderr[-2000:]
     assert "already in" in rerun.stdout and len((out / "results.csv").read_text().splitlines()) == 1 + 2 * 6 * 2
@@ -299,3 +299,219 @@ def test_ctrl_c_during_evaluate_is_one_line_and_exit_130(capsys, monkeypatch):
     monkeypatch.setattr(runner, "run_episode", interrupted)
     rc, _, err = _cli(["evaluate", "--task", "Grid15Eval-v0", "--planner", "random", *TINY], capsys)
     assert rc == 130 and err.strip() == "ipp-bench: interrupted"
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc (Linux)")
+@pytest.mark.timeout(240)
+def test_a_worker_killed_by_the_os_stops_the_run_with_one_line_and_the_resume_command(tmp_path):
+    """SIGKILL on one pool worker (as the OOM killer does): one line naming an episode, exit 1,
+    the resume command, no process left; the rerun completes."""
+    out = tmp_path / "lb"
+    argv = [sys.executable, "-m", "ipp_bench.cli", "leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "greedy",
+            "--episodes", "8", "--backend", "process", "--workers", "2", "--no-progress", "--out", str(out),
+            "--env", "budget_s=60", "--env", "report_times=[30,60]"]
+    proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:  # the workers: children of the forkserver, grandchildren of the run
+            workers = [p for p in _descendants_alive(proc.pid) if p != proc.pid and _ppid(p) != proc.pid]
+            if len(workers) >= 2 and (out / "run.json").exists():
+                break
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.2)
+        os.kill(workers[0], signal.SIGKILL)
+        stdout, stderr = proc.communicate(timeout=90)
+        deadline = time.monotonic() + 30
+        while _descendants_alive(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert _descendants_alive(proc.pid) == [], "a worker outlived the leaderboard"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 1, (stdout, stderr)
+    assert "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert "episode Grid15Eval-v1 greedy seed" in stderr and "worker process died" in stderr
+    assert "rerun the same command to resume: ipp-bench leaderboard --tasks Grid15Eval-v1" in stderr
+    rerun = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=180)
+    assert rerun.returncode == 0, rerun.stderr[-2000:]
+    assert len((out / "results.csv").read_text().splitlines()) == 1 + 8 * 2
+
+
+def _ppid(pid: int) -> int:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return -1
+    return int(stat[stat.rindex(")") + 2:].split()[1])
+
+
+# -- errors before work (issue 19) ----------------------------------------------------------------
+def _run_cli(argv, block=(), timeout=120):
+    """``ipp-bench ARGV`` in a subprocess, with the modules ``block`` made unimportable (as on an
+    install without their extra); (exit status, stdout, stderr)."""
+    code = ("import sys\n" + "".join(f"sys.modules[{m!r}] = None\n" for m in block)
+            + "from ipp_bench.cli import main\nsys.exit(main(sys.argv[1:]))\n")
+    proc = subprocess.run([sys.executable, "-c", code, *argv], cwd=REPO, capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, "MUJOCO_GL": "egl"})
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def test_render_without_matplotlib_is_refused_before_the_episode(tmp_path):
+    png = tmp_path / "x.png"
+    rc, out, err = _run_cli(["evaluate", "--task", "Grid15Eval-v1", "--planner", "greedy", "--render", str(png)],
+                            block=("matplotlib",))
+    assert rc == 2 and err.strip() == 'ipp-bench: error: the --render figure needs matplotlib: pip install "ipp-bench[eval]"'
+    assert "decisions" not in out and not png.exists()
+
+
+def test_a_deployment_task_without_the_sim_extra_names_the_extra(tmp_path):
+    for argv in (["evaluate", "--task", "MuJoCoWeed15-v1", "--planner", "random"],
+                 ["leaderboard", "--tasks", "MuJoCoWeed15-v1", "--planners", "random", "--episodes", "1",
+                  "--out", str(tmp_path / "lb")]):
+        rc, _, err = _run_cli(argv, block=("mujoco", "cv2"))
+        assert rc == 2 and 'pip install "ipp-bench[sim]"' in err and "Traceback" not in err, err
+        assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "lb").exists()
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--planners", "greedy", "--env", "budget_s=1", "--env", "report_times=[1]"], "budget_s = 1 is too small"),
+    (["--planners", "attention", "--env", "pe_dim=8"], "pe_dim=32 in the checkpoint but pe_dim=8"),
+], ids=["budget-too-small", "checkpoint-pe_dim"])
+def test_what_an_episode_start_refuses_is_refused_before_run_json(extra, message, tmp_path):
+    """Refused before the folder is written, so the corrected rerun is not refused as 'other arguments'."""
+    if "attention" in extra:
+        pytest.importorskip("torch")
+    out = tmp_path / "lb"
+    rc, _, err = _run_cli(["leaderboard", "--tasks", "Grid15Eval-v1", "--episodes", "1", "--no-progress",
+                           "--out", str(out), *extra])
+    assert rc == 2 and message in err and "task ipp_bench/Grid15Eval-v1" in err and "Traceback" not in err, err
+    assert not out.exists()
+
+
+# -- bounds on every size-like input (issue 19) ---------------------------------------------------
+@pytest.mark.parametrize("extra, message", [
+    (["--episodes", "100000000000"], "episodes = 100000000000 is invalid: expected an integer in [1, 10000]"),
+    (["--workers", "100000"], "workers = 100000 is invalid: expected an integer in [1, 256]"),
+    (["--env", "measurement_spacing=1e-4"], "mission.measurement_spacing = 0.0001 m"),
+    (["--env", "altitudes=[8,10000]"], "graph.altitudes = [8.0, 10000.0] is too fine"),
+    (["--env", "rows=100", "--env", "cols=100"], "= 20000 roadmap nodes is too large"),
+    (["--env", "speed=1e6"], "mission.budget_s x mission.speed = 200 s x 1e+06 m/s"),
+], ids=["episodes", "workers", "measurement_spacing", "altitudes", "rows-cols", "speed"])
+def test_a_size_beyond_its_bound_is_one_line_before_any_work(extra, message, capsys, tmp_path):
+    out = tmp_path / "lb"
+    t0 = time.perf_counter()
+    rc, stdout, err = _cli(["leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "random", "--no-progress",
+                            "--out", str(out), *extra], capsys)
+    assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert any(w in err for w in ("limit", "expected", "valid:"))  # the valid range or the memory needed
+    assert time.perf_counter() - t0 < 30 and not out.exists()
+
+
+def test_the_size_limits_hold_every_task_of_the_suite():
+    from ipp_bench.envs import TASKS
+    from ipp_bench.limits import check_sizes
+
+    for spec in TASKS.values():
+        check_sizes(spec.config)
+
+
+def test_gym_make_refuses_a_map_too_large_for_memory():
+    with pytest.raises(ValueError, match="roadmap nodes is too large.*GiB"):
+        gym.make(TASK, rows=100, cols=100)
+
+
+# -- no silent wrong results (issue 19) -----------------------------------------------------------
+@pytest.mark.parametrize("extra, message", [
+    (["--planners", ","], "--planners ',' names no planner"),
+    (["--planners", ""], "names no planner"),
+    (["--planners", "random", "--reference", "mcts"], "--reference 'mcts' names no planner of this run"),
+    (["--planners", "random", "--env", "episode_seeds=[0,2]", "--episodes", "6"],
+     "play 2 distinct episodes of the 6 asked for"),
+    (["--planners", "random", "--out", ""], "--out '' is empty"),
+], ids=["comma-only-planners", "empty-planners", "reference-not-run", "repeating-seeds", "empty-out"])
+def test_arguments_that_would_give_a_silently_wrong_run_are_refused(extra, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    argv = ["leaderboard", "--tasks", "Grid15Eval-v1", "--episodes", "1", "--no-progress", "--out", "lb", *TINY]
+    argv = argv[:argv.index("--out")] + extra + argv[argv.index("--out"):] if "--out" not in extra else \
+        ["leaderboard", "--tasks", "Grid15Eval-v1", "--episodes", "1", "--no-progress", *TINY, *extra]
+    rc, stdout, err = _cli(argv, capsys)
+    assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == [] and "leaderboard:" not in stdout
+
+
+def test_the_default_reference_absent_from_the_run_is_no_error(capsys, tmp_path):
+    rc, _, err = _cli(_lb(tmp_path / "lb"), capsys)  # random only: no greedy to compare with
+    assert rc == 0, err
+    assert "No paired comparison" in (tmp_path / "lb" / "leaderboard.md").read_text()
+
+
+def test_evaluate_json_is_strict_json_without_nan(capsys, monkeypatch):
+    import ipp_bench.eval.runner as runner
+
+    real = runner.run_episode
+
+    def with_nan(*args, **kwargs):  # a metric that is not a number (e.g. an empty ROI)
+        result = real(*args, **kwargs)
+        result.final["rmse_roi"] = float("nan")
+        result.report[0]["rmse_reduction_pct"] = float("inf")
+        return result
+
+    monkeypatch.setattr(runner, "run_episode", with_nan)
+    rc, out, _ = _cli(["evaluate", "--task", "Grid15Eval-v1", "--planner", "random", "--json", *TINY], capsys)
+    assert rc == 0 and "NaN" not in out and "Infinity" not in out
+    data = json.loads(out, parse_constant=lambda c: pytest.fail(f"bare {c} in --json"))
+    assert data["final"]["rmse_roi"] is None and data["report"][0]["rmse_reduction_pct"] is None
+
+
+def test_progress_lines_print_reductions_as_the_report_does(capsys, tmp_path):
+    """A negative reduction (the RMSE grew) prints as -5.4%, never as '--5.4%'."""
+    rc, out, _ = _cli(_lb(tmp_path / "lb", "--episodes", "2"), capsys)
+    lines = [ln for ln in out.splitlines() if ln.startswith("[")]
+    assert rc == 0 and lines and all("uncertainty reduction " in ln and "RMSE reduction " in ln for ln in lines)
+    assert "--" not in "".join(ln.split(":", 1)[1] for ln in lines)
+
+
+# -- a full disk (issue 19) -------------------------------------------------------------------------
+def test_a_file_written_atomically_is_complete_or_untouched(tmp_path):
+    import errno
+
+    from ipp_bench.data import OutputWriteError, write_atomically
+
+    path = tmp_path / "plot.png"
+    path.write_bytes(b"old")
+
+    def half_then_full(tmp):
+        tmp.write_bytes(b"\x89PNG half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(OutputWriteError, match=f"cannot write {path}: No space left on device"):
+        write_atomically(path, half_then_full)
+    assert path.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["plot.png"]
+
+
+def test_a_full_disk_during_a_leaderboard_is_one_line_and_the_rerun_completes(capsys, tmp_path, monkeypatch):
+    import errno
+    import types
+
+    import ipp_bench.eval.results as results_module
+
+    real_os, writes = results_module.os, []
+
+    def write(fd, data):
+        writes.append(len(data))
+        if len(writes) > 2:  # the third episode's rows meet a full disk
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_os.write(fd, data)
+
+    monkeypatch.setattr(results_module, "os", types.SimpleNamespace(**{**vars(real_os), "write": write}))
+    out = tmp_path / "lb"
+    rc, _, err = _cli(_lb(out, "--episodes", "4"), capsys)
+    assert rc == 1 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert f"cannot write {out / 'results.csv'}: No space left on device" in err
+    assert "2 of 4 episodes kept" in err and "rerun the same command to resume" in err
+    monkeypatch.setattr(results_module, "os", real_os)
+    rc, stdout, _ = _cli(_lb(out, "--episodes", "4"), capsys)
+    assert rc == 0 and "2 already in" in stdout
+    assert not [p for p in out.iterdir() if ".tmp" in p.name]

@@ -3,8 +3,11 @@
 from .graph import GraphIPPEnv
 from .registry import (
     NAMESPACE,
+    TASK_FILE_ERRORS,
     TASKS,
+    TaskFileError,
     TaskSpec,
+    load_task,
     parse_overrides,
     register_all,
     resolve_task,
@@ -16,5 +19,5 @@ from .registry import (
 
 register_all()
 
-__all__ = ["NAMESPACE", "GraphIPPEnv", "TASKS", "TaskSpec", "parse_overrides", "register_all", "resolve_task",
+__all__ = ["NAMESPACE", "GraphIPPEnv", "TASKS", "TASK_FILE_ERRORS", "TaskFileError", "TaskSpec", "load_task", "parse_overrides", "register_all", "resolve_task",
            "short_task_id", "tagged", "task_config", "task_spec"]

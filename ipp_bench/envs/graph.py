@@ -13,6 +13,7 @@ from .. import metrics as M
 from .._threads import limit_blas_threads
 from ..config import IPPConfig
 from ..fields import make_field
+from ..limits import check_sizes
 from ..mission import Mission, cell_to_xyz
 from ..roadmap import Roadmap
 from ..sensor import Sensor
@@ -77,6 +78,7 @@ class GraphIPPEnv(gym.Env):
             config = IPPConfig.from_dict(config)
         if overrides:
             config = config.replace(**overrides)
+        check_sizes(config)  # before the roadmap: a map or spacing too large costs nothing
         limit_blas_threads()
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode={render_mode!r} is invalid: valid are {self.metadata['render_modes']} or None")

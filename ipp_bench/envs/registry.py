@@ -1,18 +1,19 @@
 """Benchmark tasks: one TOML file per task in ``tasks/``, registered with gymnasium.
 
 A task file holds its id (``ipp_bench/<Name>-v<N>``), entry point, tags and the sections of an
-:class:`~ipp_bench.config.IPPConfig`; a deployment task also its ``[sim]`` table (read here, passed
-to the env as ``sim_section``, validated by ``ipp_bench.sim``, which this module never imports).
-Registration is idempotent; ``tagged("benchmark")`` is the set the leaderboard runs (dm_control's
-habit of deriving benchmark sets from tags).
+:class:`~ipp_bench.config.IPPConfig`. Registration is idempotent; ``tagged("benchmark")`` is the
+set the leaderboard runs (dm_control's habit of deriving benchmark sets from tags).
 """
 
 from __future__ import annotations
 
 import json
+import re
 import sys
+import warnings
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -31,7 +32,12 @@ NAMESPACE = "ipp_bench"
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """A benchmark task as read from its file."""
+    """A benchmark task as read from its file.
+
+    Attributes:
+        builtin: one of the suite's ``tasks/`` files (False: a user's file, :func:`load_task`).
+        sim: the file's ``[sim]`` table (the MuJoCo deployment's settings), as read.
+    """
 
     id: str
     entry_point: str
@@ -39,40 +45,147 @@ class TaskSpec:
     description: str
     config: IPPConfig
     source: str
-    #: the task's ``[sim]`` table as read (deployment tasks; the sim package validates it)
-    sim: dict | None = None
+    builtin: bool = True
+    sim: dict[str, Any] = field(default_factory=dict)
 
 
-def _load(path) -> TaskSpec:
-    with open(path, "rb") as fh:
-        data = tomllib.load(fh)
-    missing = {"id", "entry_point", "config"} - set(data)
+class TaskFileError(ValueError):
+    """A task file that cannot be read: ``"FILE:LINE: what is wrong"`` (the line where known)."""
+
+    def __init__(self, path, what: str, line: int | None = None):
+        where = f"{path}:{line}" if line else f"{path}"
+        super().__init__(f"{where}: {what}")
+        self.path, self.line, self.what = str(path), line, what
+
+
+class TaskFileWarning(UserWarning):
+    """A task file of the suite's ``tasks/`` folder was skipped (the others are registered)."""
+
+
+#: the keys a task file may have at its top level
+TASK_FILE_KEYS = ("id", "entry_point", "tags", "description", "config", "sim")
+_ID = re.compile(rf"^{NAMESPACE}/[A-Za-z][A-Za-z0-9_]*-v[0-9]+$")
+
+
+def _line_of(text: str, key: str) -> int | None:
+    """The first line (1-based) that sets ``key`` (``key = ...``) or opens the table ``[key]``."""
+    name = re.escape(key.rsplit(".", 1)[-1])
+    pattern = re.compile(rf"^\s*(?:{name}\s*=|\[[^\]]*\b{name}\])")
+    for i, line in enumerate(text.splitlines(), start=1):
+        if pattern.match(line):
+            return i
+    return None
+
+
+def load_task_file(path, builtin: bool = False) -> TaskSpec:
+    """Read and validate one task file (the checks of ``--env`` on its config, and the size limits).
+
+    Raises:
+        TaskFileError: naming the file, the line where known, and what is wrong.
+    """
+    from ..limits import check_sizes
+
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise TaskFileError(path, f"cannot be read ({err.strerror or err})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise TaskFileError(path, f"is not a UTF-8 text file (byte {err.start} is {raw[err.start]:#04x}); "
+                                  "a task file is TOML") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        m = re.search(r"\(at line (\d+), column \d+\)", str(err))
+        what = re.sub(r"\s*\(at (line \d+, column \d+|end of document)\)", "", str(err)).strip()
+        line = int(m.group(1)) if m else (max(text.count("\n"), 1) if "end of document" in str(err) else None)
+        raise TaskFileError(path, f"TOML syntax error: {what}", line) from None
+    unknown = sorted(set(data) - set(TASK_FILE_KEYS))
+    if unknown:
+        raise TaskFileError(path, f"unknown key {unknown[0]!r}: valid top-level keys are {list(TASK_FILE_KEYS)}",
+                            _line_of(text, unknown[0]))
+    missing = [k for k in ("id", "entry_point", "config") if k not in data]
     if missing:
-        raise ValueError(f"task file {path} lacks {sorted(missing)}")
-    if not data["id"].startswith(NAMESPACE + "/"):
-        raise ValueError(f"task file {path}: id {data['id']!r} must start with '{NAMESPACE}/'")
+        raise TaskFileError(path, f"lacks {missing} (a task file needs id, entry_point and [config.*] tables)")
+    task_id = data["id"]
+    if not isinstance(task_id, str) or not _ID.match(task_id):
+        raise TaskFileError(path, f"id = {task_id!r} is invalid: expected a string '{NAMESPACE}/<Name>-v<N>', "
+                                  f"e.g. '{NAMESPACE}/MyGrid-v0'", _line_of(text, "id"))
+    entry = data["entry_point"]
+    if not isinstance(entry, str) or entry.count(":") != 1:
+        raise TaskFileError(path, f"entry_point = {entry!r} is invalid: expected 'module:Class', e.g. "
+                                  "'ipp_bench.envs.graph:GraphIPPEnv'", _line_of(text, "entry_point"))
+    tags = data.get("tags", [])
+    if not isinstance(tags, list) or not all(isinstance(t, str) for t in tags):
+        raise TaskFileError(path, f"tags = {tags!r} is invalid: expected a list of strings",
+                            _line_of(text, "tags"))
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise TaskFileError(path, f"description = {description!r} is invalid: expected a string",
+                            _line_of(text, "description"))
+    sim = data.get("sim", {})
+    if not isinstance(sim, dict):
+        raise TaskFileError(path, f"sim = {sim!r} is invalid: expected a [sim] table", _line_of(text, "sim"))
+    if not isinstance(data["config"], dict):
+        raise TaskFileError(path, "config is invalid: expected [config.grid], [config.mission], ... tables",
+                            _line_of(text, "config"))
     try:
         config = IPPConfig.from_dict(data["config"])
+        check_sizes(config)
     except ValueError as err:
-        raise ValueError(f"task file {path}: {err}") from None
-    sim = data.get("sim")
-    if sim is not None and not isinstance(sim, dict):
-        raise ValueError(f"task file {path}: [sim] must be a table, got {sim!r}")
-    return TaskSpec(data["id"], data["entry_point"], tuple(data.get("tags", ())),
-                    data.get("description", "").strip(), config, str(path), sim)
+        m = re.match(r"(\w+)\.(\w+) = ", str(err)) or re.search(r"unknown fields \['(\w+)'", str(err))
+        line = _line_of(text, m.group(m.lastindex)) if m else None
+        raise TaskFileError(path, str(err), line) from None
+    return TaskSpec(task_id, entry, tuple(tags), description.strip(), config, str(path), builtin, dict(sim))
 
 
-def _discover() -> dict[str, TaskSpec]:
-    specs = {}
-    for path in sorted(data_dir("tasks").glob("*.toml")):
-        spec = _load(path)
-        if spec.id in specs:
-            raise ValueError(f"task id {spec.id} is defined twice: {specs[spec.id].source} and {path}")
+def discover(folder, builtin: bool = False) -> tuple[dict[str, TaskSpec], list[str]]:
+    """The valid task files of ``folder`` by id, and one ``"FILE:LINE: what"`` per invalid one
+    (each also a :class:`TaskFileWarning`, pointing at the file's line); a bad file never stops
+    the others."""
+    specs: dict[str, TaskSpec] = {}
+    errors: list[str] = []
+    for path in sorted(Path(folder).glob("*.toml")):
+        try:
+            spec = load_task_file(path, builtin)
+            if spec.id in specs:
+                raise TaskFileError(path, f"id {spec.id!r} is already defined by {specs[spec.id].source}",
+                                    _line_of(path.read_text(), "id"))
+        except TaskFileError as err:
+            errors.append(str(err))
+            warnings.warn_explicit(f"{err.what}; this task file is skipped (the other tasks work)",
+                                   TaskFileWarning, filename=err.path, lineno=err.line or 0)
+            continue
         specs[spec.id] = spec
-    return specs
+    return specs, errors
 
 
-TASKS: dict[str, TaskSpec] = _discover()
+#: the suite's tasks by id, and its task files that could not be read ("FILE:LINE: what", skipped)
+TASKS, TASK_FILE_ERRORS = discover(data_dir("tasks"), builtin=True)
+_load = load_task_file  # the name older callers import
+
+
+def load_task(path) -> str:
+    """Load a task file from anywhere, register it with gymnasium and return its id.
+
+    The file has the layout of the suite's ``tasks/*.toml`` and the same checks. Loading the same
+    file again is a no-op; another file with the id of a registered task is refused.
+
+    Raises:
+        TaskFileError: the file cannot be read or is invalid (file, line, what).
+    """
+    spec = load_task_file(path)
+    held = TASKS.get(spec.id)
+    if held is not None:
+        if Path(held.source).resolve() == Path(spec.source).resolve():
+            return spec.id
+        raise TaskFileError(path, f"id {spec.id!r} is already registered (from {held.source}): give your task "
+                                  "another name", _line_of(Path(path).read_text(), "id"))
+    TASKS[spec.id] = spec
+    _register(spec)
+    return spec.id
 
 
 def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
@@ -82,7 +195,13 @@ def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
     itself, gymnasium would wrap an ``rgb_array`` env asked for ``"human"`` in its HumanRendering
     window, which asks for pygame instead.)
     """
-    cls = load_env_creator(env_class)
+    try:
+        cls = load_env_creator(env_class)
+    except ImportError as err:
+        spec = TASKS.get(kwargs.get("task_id", ""))
+        extra = "sim" if spec is not None and "deployment" in spec.tags else None  # the MuJoCo tasks
+        hint = f'pip install "ipp-bench[{extra}]"' if extra else "install the package that provides it"
+        raise ImportError(f"the environment {env_class} cannot be imported ({err}): {hint}") from None
     modes = list(cls.metadata.get("render_modes", []))
     if render_mode is not None and render_mode not in modes:
         raise ValueError(f"render_mode={render_mode!r} is invalid: valid are {modes} or None "
@@ -93,14 +212,17 @@ def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
 def register_all() -> None:
     """Register every task with gymnasium (idempotent)."""
     for spec in TASKS.values():
-        if spec.id in gym.registry:
-            continue
-        kwargs = {"env_class": spec.entry_point, "config": spec.config, "task_id": spec.id}
-        if spec.sim is not None:
-            kwargs["sim_section"] = spec.sim
-        gym.register(id=spec.id, entry_point=f"{__name__}:make_task_env",
-                     kwargs=kwargs,
-                     disable_env_checker=True, order_enforce=False)
+        _register(spec)
+
+
+def _register(spec: TaskSpec) -> None:
+    if spec.id in gym.registry:
+        return
+    kwargs = {"env_class": spec.entry_point, "config": spec.config, "task_id": spec.id}
+    if spec.sim:  # a deployment task's [sim] table, validated by ipp_bench.sim (never imported here)
+        kwargs["sim_section"] = spec.sim
+    gym.register(id=spec.id, entry_point=f"{__name__}:make_task_env", kwargs=kwargs,
+                 disable_env_checker=True, order_enforce=False)
 
 
 def tagged(tag: str) -> list[str]:
@@ -110,15 +232,22 @@ def tagged(tag: str) -> list[str]:
 
 def task_spec(task_id: str) -> TaskSpec:
     """The task ``task_id`` (``"Grid15Eval-v0"`` stands for ``"ipp_bench/Grid15Eval-v0"``)."""
+    if str(task_id).endswith(".toml"):  # a user's task file
+        return TASKS[load_task(task_id)]
     try:
         return TASKS[resolve_task(task_id)]
     except KeyError:
-        raise ValueError(f"unknown task {task_id!r}: valid are {sorted(TASKS)}") from None
+        skipped = f"; skipped task files: {'; '.join(TASK_FILE_ERRORS)}" if TASK_FILE_ERRORS else ""
+        raise ValueError(f"unknown task {task_id!r}: valid are {sorted(TASKS)} or a task file path "
+                         f"(path/to/mine.toml){skipped}") from None
 
 
 def resolve_task(name: str) -> str:
-    """The full task id of ``name``: the namespace prefix is optional. Does not check it exists."""
+    """The full task id of ``name``: the namespace prefix is optional. Does not check it exists,
+    except for a task file path (``path/to/mine.toml``), which is loaded (:func:`load_task`)."""
     name = name.strip()
+    if name.endswith(".toml"):  # a user's task file: loaded and registered
+        return load_task(name)
     return name if "/" in name else f"{NAMESPACE}/{name}"
 
 
@@ -150,7 +279,7 @@ def sim_fields(spec: TaskSpec) -> set[str]:
     """The field names of a task's ``[sim]`` table (its own keys and its sub-tables' keys): the
     simulation settings ``--env`` may override; the env validates their values."""
     names: set[str] = set()
-    for key, value in (spec.sim or {}).items():
+    for key, value in spec.sim.items():
         names.update(value) if isinstance(value, dict) else names.add(key)
     return names
 

@@ -21,9 +21,11 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import TypeVar
 
 from .._threads import available_cpus, limit_blas_threads
@@ -38,6 +40,29 @@ class ExecutorError(RuntimeError):
     """A backend that cannot start (e.g. no Ray cluster at the address); the message says how to fix it."""
 
 
+class JobFailed(RuntimeError):
+    """One job failed: it raised (``reason``: its one-line message) or its worker process died.
+
+    Every backend raises this, and only this, for a job that gives no result, so the caller keeps
+    what finished and names the job, whatever ran it.
+    """
+
+    def __init__(self, job, reason: str):
+        super().__init__(reason)
+        self.job, self.reason = job, reason
+
+
+class JobError(RuntimeError):
+    """What a job function raises for a failure it has already put in one line (the executors
+    pass its message on as the :class:`JobFailed` reason, unchanged)."""
+
+
+#: the reason given for a job whose worker process vanished (SIGKILL, the kernel's OOM killer)
+WORKER_DIED = "its worker process died (killed by a signal, e.g. by the OS when memory ran out)"
+
+
+#: the most worker processes (process pool) or local Ray CPUs a run may ask for
+MAX_WORKERS = 256
 WATCH_PERIOD_S = 0.5  # [s] how often a pool worker checks that the run's process is alive
 
 
@@ -85,7 +110,11 @@ class SerialExecutor:
     def imap_unordered(self, fn: Callable[[J], R], jobs: Sequence[J]) -> Iterator[tuple[J, R]]:
         init_worker()
         for job in jobs:
-            yield job, fn(job)
+            try:
+                result = fn(job)
+            except Exception as err:
+                raise JobFailed(job, _reason(err)) from None
+            yield job, result
 
     def close(self, abort: bool = False) -> None:
         pass
@@ -100,8 +129,7 @@ class ProcessExecutor:
     name = "process"
 
     def __init__(self, workers: int):
-        if workers < 1:
-            raise ValueError(f"workers = {workers} is invalid: expected an integer >= 1")
+        check_workers(workers)
         self.workers = workers
         methods = multiprocessing.get_all_start_methods()
         self.start_method = "forkserver" if "forkserver" in methods else "spawn"
@@ -118,7 +146,13 @@ class ProcessExecutor:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
                     job = pending.pop(fut)
-                    yield job, fut.result()
+                    try:
+                        result = fut.result()
+                    except BrokenProcessPool:
+                        raise JobFailed(job, WORKER_DIED) from None
+                    except Exception as err:
+                        raise JobFailed(job, _reason(err)) from None
+                    yield job, result
         finally:
             for fut in pending:
                 fut.cancel()
@@ -145,6 +179,34 @@ def _import_ray():
     return ray
 
 
+class _stderr_kept_unless_failed:
+    """Hold what is written to file descriptor 2 (C++ libraries write there directly) while the
+    block runs: replayed if it succeeds, dropped if it raises (the caller says it in one line)."""
+
+    def __enter__(self):
+        import tempfile
+
+        self._buf = tempfile.TemporaryFile()
+        try:
+            sys.stderr.flush()
+        except (AttributeError, ValueError):  # pragma: no cover
+            pass
+        self._saved = os.dup(2)
+        os.dup2(self._buf.fileno(), 2)
+        return self
+
+    def __exit__(self, exc_type, *exc):
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+        if exc_type is None:
+            self._buf.seek(0)
+            held = self._buf.read()
+            if held:
+                os.write(2, held)
+        self._buf.close()
+        return False
+
+
 class RayExecutor:
     """One Ray task per job on a Ray cluster.
 
@@ -167,7 +229,8 @@ class RayExecutor:
             self.where = "the Ray already initialised in this process"
         elif self.address:
             try:
-                ray.init(address=self.address, log_to_driver=False)
+                with _stderr_kept_unless_failed():  # Ray's C++ client logs every failed retry
+                    ray.init(address=self.address, log_to_driver=False)
             except ConnectionError:
                 raise ExecutorError(
                     f"no Ray cluster found at {self.address!r}: start one with 'ray start --head' (on this "
@@ -189,7 +252,13 @@ class RayExecutor:
                 done, _ = ray.wait(list(refs), num_returns=1)
                 for ref in done:
                     job = refs.pop(ref)
-                    yield job, ray.get(ref)
+                    try:
+                        result = ray.get(ref)
+                    except ray.exceptions.RayTaskError as err:  # the job raised: its own exception
+                        raise JobFailed(job, _reason(getattr(err, "cause", None) or err)) from None
+                    except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError) as err:
+                        raise JobFailed(job, f"{WORKER_DIED} ({type(err).__name__})") from None
+                    yield job, result
         finally:
             for ref in refs:
                 ray.cancel(ref, force=True)
@@ -203,6 +272,21 @@ class RayExecutor:
         return f"Ray tasks on {self.where}"
 
 
+def check_workers(workers: int) -> None:
+    """Raise ValueError unless ``workers`` is in [1, :data:`MAX_WORKERS`]."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= MAX_WORKERS:
+        raise ValueError(f"workers = {workers!r} is invalid: expected an integer in [1, {MAX_WORKERS}] "
+                         f"(this machine has {available_cpus()} CPUs)")
+
+
+def _reason(err: BaseException) -> str:
+    """One line for a job's exception: its type and first line of message."""
+    if isinstance(err, JobError):
+        return str(err)
+    text = str(err).strip().splitlines()
+    return f"{type(err).__name__}: {text[0]}" if text else type(err).__name__
+
+
 def check_executor_args(backend: str, workers: int | None = None, address: str | None = None) -> None:
     """Validate executor arguments without starting anything.
 
@@ -212,8 +296,8 @@ def check_executor_args(backend: str, workers: int | None = None, address: str |
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend {backend!r} is invalid: valid are {list(BACKENDS)}")
-    if workers is not None and workers < 1:
-        raise ValueError(f"workers = {workers} is invalid: expected an integer >= 1")
+    if workers is not None:
+        check_workers(workers)
     if address and backend != "ray":
         raise ValueError(f"--address is for the ray backend, not {backend!r} (add --backend ray)")
     if backend == "ray":
@@ -246,4 +330,4 @@ def make_executor(backend: str, workers: int | None = None, address: str | None 
     return RayExecutor(workers, address)
 
 
-__all__ = ["BACKENDS", "ExecutorError", "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args", "default_backend", "make_executor"]
+__all__ = ["BACKENDS", "MAX_WORKERS", "WORKER_DIED", "check_workers", "ExecutorError", "JobError", "JobFailed", "ProcessExecutor", "RayExecutor", "SerialExecutor", "available_cpus", "check_executor_args", "default_backend", "make_executor"]

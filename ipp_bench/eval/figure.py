@@ -15,6 +15,18 @@ from pathlib import Path
 import numpy as np
 
 from ..config import cell_centre
+from ..data import write_atomically
+
+
+FIGURE_EXTRA_MESSAGE = 'the --render figure needs matplotlib: pip install "ipp-bench[eval]"'
+
+
+def require_figure() -> None:
+    """Raise ImportError (naming the extra) now if :func:`save_episode_figure` could not draw."""
+    try:
+        import matplotlib.figure  # noqa: F401
+    except ImportError:
+        raise ImportError(FIGURE_EXTRA_MESSAGE) from None
 
 
 def save_episode_figure(mission, path: str | Path, title: str = "") -> Path:
@@ -25,7 +37,7 @@ def save_episode_figure(mission, path: str | Path, title: str = "") -> Path:
         from matplotlib.figure import Figure
         from matplotlib.lines import Line2D
     except ImportError:
-        raise ImportError('the --render figure needs matplotlib: pip install "ipp-bench[eval]"') from None
+        raise ImportError(FIGURE_EXTRA_MESSAGE) from None
     cfg = mission.config
     g = cfg.grid
     width, height = g.size_m
@@ -76,5 +88,5 @@ def save_episode_figure(mission, path: str | Path, title: str = "") -> Path:
                  f"{m['uncertainty_reduction_pct']:.1f} %, RMSE reduction {m['rmse_reduction_pct']:.1f} %",
                  fontsize=11)
     out = Path(path)
-    fig.savefig(out, dpi=100)
+    write_atomically(out, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
     return out

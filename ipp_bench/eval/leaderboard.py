@@ -15,13 +15,15 @@ from __future__ import annotations
 
 import sys
 import time
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..envs import short_task_id
-from .executors import default_backend, make_executor
+from ..data import OutputWriteError
+from ..envs import load_task, short_task_id
+from .executors import JobError, JobFailed, default_backend, make_executor
 from .plan import (
     DEFAULT_EPISODES,
     LEADERBOARD_DEFAULTS,
@@ -60,17 +62,31 @@ class Interrupted(Exception):
         self.kept, self.total, self.out_dir = kept, total, out_dir
 
 
+class EpisodeFailed(Exception):
+    """An episode gave no result (its planner raised, or its worker process died); the run stopped
+    and ``kept`` finished episodes are in ``out_dir``."""
+
+    def __init__(self, job: EpisodeJob, reason: str, kept: int, total: int, out_dir: Path, command: str | None):
+        resume = f": {command}" if command else ""
+        super().__init__(f"episode {short_task_id(job.task)} {job.planner} seed {job.seed} failed: {reason}; "
+                         f"stopped, {kept} of {total} episodes kept in {out_dir}; fix the cause and rerun "
+                         f"the same command to resume{resume}")
+        self.job, self.reason, self.kept, self.total, self.out_dir = job, reason, kept, total, out_dir
+
+
 def run_job(job: EpisodeJob) -> list[dict[str, Any]]:
     """Fly one episode and return its results.csv rows (one per report time).
 
     Raises:
-        ValueError: the episode cannot be flown as asked (e.g. a budget too small for any first
-            move), naming the episode.
+        JobError: the episode failed (e.g. a budget too small for any first move, a planner that
+            raised): one line, with where the exception was raised.
     """
     try:
+        if job.task_file is not None:  # a user's task: registered in this process too
+            load_task(job.task_file)
         result = run_episode(job.task, job.planner, job.seed, **dict(job.env_overrides))
-    except ValueError as err:
-        raise ValueError(f"episode {job.task} {job.planner} seed {job.seed}: {err}") from None
+    except Exception as err:
+        raise JobError(_one_line(err)) from None
     expected = report_times(job.task, dict(job.env_overrides))
     got = tuple(r["time_s"] for r in result.report)
     if got != expected:
@@ -82,6 +98,17 @@ def run_job(job: EpisodeJob) -> list[dict[str, Any]]:
         "episode_wall_s": result.episode_wall_s,
     }
     return [{"task": job.task, "planner": job.planner, "seed": job.seed, **r, **common} for r in result.report]
+
+
+def _one_line(err: BaseException) -> str:
+    """``Type: first line of the message (at file:line in function)``, the innermost frame."""
+    lines = str(err).strip().splitlines()
+    text = f"{type(err).__name__}: {lines[0]}" if lines else type(err).__name__
+    tb = err.__traceback__
+    if tb is None:
+        return text
+    frame = traceback.extract_tb(tb)[-1]
+    return f"{text} (at {Path(frame.filename).name}:{frame.lineno} in {frame.name})"
 
 
 @dataclass
@@ -117,7 +144,8 @@ class _Progress:
         last = rows[-1]
         task = short_task_id(job.task)
         text = (f"{task} {job.planner} seed={job.seed}: "
-                f"uncertainty -{last['uncertainty_reduction_pct']:.1f}% rmse -{last['rmse_reduction_pct']:.1f}% "
+                f"uncertainty reduction {last['uncertainty_reduction_pct']:.1f}%, "
+                f"RMSE reduction {last['rmse_reduction_pct']:.1f}% "
                 f"at {last['time_s']:g} s, {last['decisions']} decisions, {last['episode_wall_s']:.1f} s")
         if self.bar is not None:
             self.bar.set_postfix_str(f"{task} {job.planner}", refresh=False)
@@ -153,6 +181,8 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
         ExecutorError: the backend cannot start (e.g. no Ray cluster at ``address``); nothing written.
         ImportError: ray backend without Ray.
         Interrupted: Ctrl-C (or SIGTERM turned into KeyboardInterrupt); finished episodes are kept.
+        EpisodeFailed: an episode raised or its worker died; the run stopped, finished episodes are kept.
+        OutputWriteError: a file could not be written (a full disk), naming it; finished episodes are kept.
     """
     t0 = time.perf_counter()
     if backend is None:
@@ -165,6 +195,8 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
         skipped = len(jobs) - len(todo)
         log(f"leaderboard: {len(plan.tasks)} tasks x {len(plan.planners)} planners x {plan.episodes} episodes "
             f"= {len(jobs)} episodes; {skipped} already in {store.csv_path}, {len(todo)} to run")
+        if not todo:
+            log(f"all {len(jobs)} episodes are already complete in {store.csv_path}; nothing to run")
         executor = make_executor(backend, workers, address) if todo else None  # before anything is written
         store.begin()
         if executor is not None:
@@ -178,6 +210,11 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
                 aborted = False
             except KeyboardInterrupt:
                 raise Interrupted(len(store.done), len(jobs), Path(out_dir)) from None
+            except JobFailed as err:
+                raise EpisodeFailed(err.job, err.reason, len(store.done), len(jobs), Path(out_dir), command) from None
+            except OutputWriteError as err:  # a full disk: stop, what is on disk stays resumable
+                raise OutputWriteError(f"{err}; stopped, {len(store.done)} of {len(jobs)} episodes kept in "
+                                       f"{out_dir}; free space and rerun the same command to resume") from None
             finally:
                 bar.close()
                 executor.close(abort=aborted)
@@ -201,6 +238,7 @@ __all__ = [
     "RESULTS_CSV",
     "RUN_JSON",
     "TIMING_COLUMNS",
+    "EpisodeFailed",
     "EpisodeJob",
     "Interrupted",
     "Plan",

@@ -21,12 +21,15 @@ from typing import Any
 
 import numpy as np
 
+from ..config import IPPConfig, field_owners
 from ..envs import tagged, task_config, task_spec
 from ..envs.registry import resolve_task as _resolve
 from ..planners import make_config, make_planner, parse_spec, planner_names
 
 SEED_SCHEME = "SeedSequence(seed).spawn(episodes)[i] -> uint31"
 DEFAULT_EPISODES = 20
+#: the most episodes per (task, planner): a 95% interval is already ~1/100 of the spread at 10^4
+MAX_EPISODES = 10_000
 DEFAULT_TAG = "benchmark"
 # --quick: few episodes and cheaper look-ahead (spec overrides, applied unless the spec sets the
 # key itself). Sized so that all benchmark tasks x all planners fit 5 minutes on 2 busy cores:
@@ -48,12 +51,17 @@ LEADERBOARD_DEFAULTS: dict[str, dict[str, Any]] = {
 
 def episode_seeds(seed: int, episodes: int) -> list[int]:
     """``episodes`` seeds derived from ``seed`` (prefix-stable: more episodes keep the first ones)."""
-    if episodes < 1:
-        raise ValueError(f"episodes = {episodes} is invalid: expected an integer >= 1")
+    _check_episodes(episodes)
     if seed < 0:
         raise ValueError(f"seed = {seed} is invalid: expected an integer >= 0")
     children = np.random.SeedSequence(int(seed)).spawn(int(episodes))
     return [int(c.generate_state(1, np.uint32)[0] >> 1) for c in children]
+
+
+def _check_episodes(episodes: Any) -> None:
+    if (isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer))
+            or not 1 <= episodes <= MAX_EPISODES):
+        raise ValueError(f"episodes = {episodes!r} is invalid: expected an integer in [1, {MAX_EPISODES}]")
 
 
 def resolve_task(name: str) -> str:
@@ -92,9 +100,131 @@ def report_times(task: str, env_overrides: dict[str, Any] | None = None) -> tupl
     return task_config(task, env_overrides).mission.report_times_in_budget
 
 
-def _config_digest(task: str, env_overrides: dict[str, Any]) -> str:
-    blob = json.dumps(task_config(task, env_overrides).to_dict(), sort_keys=True, default=str)
+#: config fields added since run.json began to record task configs (as 16-hex digests of the
+#: whole config, before the configs were recorded field by field), by the change that added them,
+#: oldest first. A digest of an older folder matches today's config without the fields added after
+#: it was written, when those hold their defaults (the values that reproduce the older behaviour).
+DIGEST_ERA_ADDED_FIELDS: tuple[tuple[str, ...], ...] = (
+    ("nugget", "binning_noise_exponent", "episode_seeds"),  # benchmark v1
+    ("persistent_var", "persistent_var_binned", "persistent_corr", "noise_floor"),  # camera-error states
+)
+
+
+def _json(value: Any) -> Any:
+    """``value`` as JSON reads it back (tuples become lists), so that a stored one compares equal."""
+    return json.loads(json.dumps(value, default=str))
+
+
+def task_config_record(task: str, env_overrides: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
+    """The configuration of ``task`` (with ``env_overrides``) as run.json records it: every field,
+    by section, as the config normalises it (JSON values)."""
+    return _json(task_config(task, env_overrides).to_dict())
+
+
+def _flat(record: dict[str, Any]) -> dict[str, Any]:
+    return {f"{section}.{name}": value for section, fields in record.items() if isinstance(fields, dict)
+            for name, value in fields.items()}
+
+
+def _config_digest(record: dict[str, Any]) -> str:
+    """The digest older run.json files recorded per task (sha256 of the sorted JSON, 16 hex)."""
+    blob = json.dumps(record, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _legacy_digest_matches(digest: str, record: dict[str, Any]) -> bool:
+    """Whether an older folder's digest is today's ``record`` without the fields added since (at
+    their defaults; :data:`DIGEST_ERA_ADDED_FIELDS`)."""
+    if digest == _config_digest(record):
+        return True
+    defaults = _flat(_json(IPPConfig().to_dict()))
+    owners = field_owners()
+    trimmed = json.loads(json.dumps(record))
+    for era in reversed(DIGEST_ERA_ADDED_FIELDS):
+        for name in era:
+            section = owners.get(name)
+            if section is None or name not in trimmed.get(section, {}):
+                continue
+            if trimmed[section][name] != defaults[f"{section}.{name}"]:
+                return False  # a later field away from its default: the older code could not have run it
+            del trimmed[section][name]
+        if digest == _config_digest(trimmed):
+            return True
+    return False
+
+
+def config_differences(stored: Any, current: dict[str, Any]) -> list[str]:
+    """What differs between a stored task config record and today's, one ``field: there X, now Y``
+    each; empty when they are the same arguments.
+
+    Values compare as numbers (``30`` and ``30.0`` are the same budget); a field the stored record
+    lacks is the same when today's value is its default (a field added since, at the value that
+    keeps the older behaviour). ``stored`` may be an older folder's digest string
+    (:func:`_legacy_digest_matches`).
+    """
+    if isinstance(stored, str):
+        if _legacy_digest_matches(stored, current):
+            return []
+        return [f"config digest {stored}, which today's config does not give (a changed task file or "
+                "default; that folder recorded no field-by-field config to name it)"]
+    if not isinstance(stored, dict):
+        return [f"an unreadable config record {stored!r}"]
+    there, now = _flat(stored), _flat(current)
+    defaults = _flat(_json(IPPConfig().to_dict()))
+    out = []
+    for key in sorted(set(there) | set(now)):
+        if key not in there:
+            if key in defaults and now[key] == defaults[key]:
+                continue  # added since, at its default
+            out.append(f"{key}: not recorded there (older code: the default {defaults.get(key)!r}), now {now[key]!r}")
+        elif key not in now:
+            out.append(f"{key}: there {there[key]!r}, a field today's config no longer has")
+        elif there[key] != now[key]:
+            out.append(f"{key}: there {there[key]!r}, now {now[key]!r}")
+    return out
+
+
+def fingerprint_differences(stored: dict[str, Any], current: dict[str, Any]) -> dict[str, list[str]]:
+    """Per differing fingerprint key, lines saying how (empty dict: the same arguments).
+
+    ``task_configs`` compare field by field (:func:`config_differences`); every other key by
+    value, numbers as numbers.
+    """
+    out: dict[str, list[str]] = {}
+    for key in sorted(set(stored) | set(current)):
+        there, now = stored.get(key), current.get(key)
+        if key == "task_configs" and isinstance(there, dict) and isinstance(now, dict):
+            lines = []
+            for task in sorted(set(there) | set(now)):
+                if task not in there or task not in now:
+                    lines.append(f"{task}: {'not there' if task not in there else 'not now'}")
+                    continue
+                lines += [f"{task} {line}" for line in config_differences(there[task], now[task])]
+            if lines:
+                out[key] = lines
+        elif there != now:
+            out[key] = [f"there {_short(there)}, now {_short(now)}"]
+    return out
+
+
+def _short(value: Any, limit: int = 200) -> str:
+    text = json.dumps(value, sort_keys=True, default=str)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def normalised_overrides(tasks: Sequence[str], env_overrides: dict[str, Any]) -> dict[str, Any]:
+    """``env_overrides`` as the config holds them (``budget_s=30`` and ``30.0`` alike), JSON values."""
+    if not env_overrides or not tasks:
+        return _json(dict(sorted(env_overrides.items())))
+    config = task_config(tasks[0], env_overrides)
+    owners = field_owners()
+    out = {}
+    for k in sorted(env_overrides):
+        if k in owners:
+            out[k] = getattr(getattr(config, owners[k]), k)
+        else:  # a whole section given as a dict
+            out[k] = env_overrides[k]
+    return _json(out)
 
 
 def planner_fingerprint(planner: Any) -> dict[str, str]:
@@ -107,14 +237,15 @@ def planner_fingerprint(planner: Any) -> dict[str, str]:
 def default_planners(log: Callable[[str], None] = print) -> list[str]:
     """Every registered planner that can be built here; the others are left out with a note.
 
-    A planner whose module, extra (torch, pycma) or checkpoint is missing cannot run; that is fine
-    for the default list (a printed note says why), never for a planner asked for by name.
+    A planner whose module, extra (torch, pycma) or checkpoint is missing, or a plugin that fails
+    to build (no ``Config``, an exception in its constructor), cannot run; that is fine for the
+    default list (a printed note says why), never for a planner asked for by name.
     """
     names = []
     for name in planner_names():
         try:
             make_planner(name)
-        except (ImportError, OSError, ValueError) as err:
+        except Exception as err:  # any broken planner (a plugin's bug too) is left out, with its reason
             log(f"note: leaving planner {name!r} out of the default list: {type(err).__name__}: {err}")
             continue
         names.append(name)
@@ -129,6 +260,7 @@ class EpisodeJob:
     planner: str
     seed: int
     env_overrides: tuple[tuple[str, Any], ...] = ()
+    task_file: str | None = None  # a user's task file (not of the suite): a worker loads it first
 
     @property
     def key(self) -> tuple[str, str, int]:
@@ -170,8 +302,8 @@ class Plan:
             "tasks": sorted(self.tasks),
             "planners": sorted(self.planners),
             "seed": self.seed,
-            "env_overrides": {k: self.env_overrides[k] for k in sorted(self.env_overrides)},
-            "task_configs": {t: _config_digest(t, self.env_overrides) for t in sorted(self.tasks)},
+            "env_overrides": normalised_overrides(self.tasks, self.env_overrides),
+            "task_configs": {t: task_config_record(t, self.env_overrides) for t in sorted(self.tasks)},
             "planner_fingerprints": {p: self.planner_fingerprints[p] for p in sorted(self.planner_fingerprints)},
             "seed_scheme": SEED_SCHEME,
         }, default=str))
@@ -179,7 +311,9 @@ class Plan:
     def jobs(self) -> list[EpisodeJob]:
         """Every episode, seed-major (an interrupted run has all planners on its first seeds)."""
         overrides = tuple((k, _freeze(v)) for k, v in sorted(self.env_overrides.items()))
-        return [EpisodeJob(t, p, s, overrides) for s in self.seeds for t in self.tasks for p in self.planners]
+        files = {t: (None if task_spec(t).builtin else task_spec(t).source) for t in self.tasks}
+        return [EpisodeJob(t, p, s, overrides, files[t]) for s in self.seeds for t in self.tasks
+                for p in self.planners]
 
 
 def _freeze(value: Any) -> Any:
@@ -192,7 +326,7 @@ def _freeze(value: Any) -> Any:
 def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None = None,
               episodes: int | None = None, seed: int = 0, quick: bool = False,
               env_overrides: dict[str, Any] | None = None,
-              log: Callable[[str], None] = print) -> Plan:
+              log: Callable[[str], None] = print, check_start: bool = True) -> Plan:
     """Resolve and validate the leaderboard's arguments.
 
     Args:
@@ -204,6 +338,9 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
         seed: base seed of the episode seeds.
         quick: few episodes and :data:`QUICK_OVERRIDES` on the planners (a spec's own keys win).
         env_overrides: IPPConfig fields set on every task.
+        check_start: start the first episode of every task with every planner (reset, no
+            decision; :func:`check_episode_starts`), so that what an episode's start refuses is
+            refused here, before a results folder is written.
 
     Raises:
         ValueError: unknown task, planner or setting; a planner that cannot be built (its message);
@@ -220,13 +357,16 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
             mission = task_config(t, env_overrides).mission
             raise ValueError(f"task {t}: no report time {mission.report_times} lies within the budget "
                              f"of {mission.budget_s} s; lower report_times or raise budget_s")
-    if episodes is not None and (isinstance(episodes, bool) or int(episodes) < 1):
-        raise ValueError(f"episodes = {episodes} is invalid: expected an integer >= 1")
-    explicit = bool(planners)
-    specs = list(planners) if planners else default_planners(log)
+    if episodes is not None:
+        _check_episodes(episodes)
+    if planners is not None and not [p for p in planners if str(p).strip(" ,")]:
+        raise ValueError(f"the planner list {list(planners)!r} names no planner: pass planner specs "
+                         "(e.g. --planners random greedy), or leave --planners out for every planner")
+    explicit = planners is not None
+    specs = list(planners) if planners is not None else default_planners(log)
     if not specs:
         raise ValueError("no planner can be built: pass --planners")
-    resolved, fingerprints, quick_changed = [], {}, quick and episodes is None
+    resolved, fingerprints, quick_changed, built = [], {}, quick and episodes is None, {}
     for spec in specs:
         name = parse_spec(spec)[0]
         extra = {} if explicit else dict(LEADERBOARD_DEFAULTS.get(name, {}))
@@ -235,7 +375,8 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
         canon = canonical_spec(spec, extra)
         quick_changed = quick_changed or canon != without_quick
         # a planner must build here, or fail now, loudly (the default list holds buildable ones)
-        fingerprint = planner_fingerprint(make_planner(canon))
+        built[canon] = make_planner(canon)
+        fingerprint = planner_fingerprint(built[canon])
         if fingerprint:
             fingerprints[canon] = fingerprint
         resolved.append(canon)
@@ -243,8 +384,51 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
     if episodes is None:
         episodes = QUICK_EPISODES if quick else DEFAULT_EPISODES
     seeds = episode_seeds(seed, episodes)
+    for t in task_ids:
+        _check_distinct_episodes(t, seeds, env_overrides)
+    if check_start:
+        check_episode_starts(task_ids, built, seeds[0], env_overrides)
     return Plan(tuple(task_ids), tuple(resolved), int(episodes), int(seed), tuple(seeds), env_overrides,
                 quick_changed, fingerprints)
+
+
+def _check_distinct_episodes(task: str, seeds: Sequence[int], env_overrides: dict[str, Any]) -> None:
+    """Refuse seeds that play the same episode twice on ``task`` (its ``episode_seeds`` range is
+    narrower than the run): repeated episodes would be bootstrapped as independent ones."""
+    lo, hi = task_config(task, env_overrides).mission.episode_seeds
+    played = {lo + s % (hi - lo) for s in seeds}
+    if len(played) < len(seeds):
+        raise ValueError(
+            f"task {task}: its episode_seeds [{lo}, {hi}) play {len(played)} distinct episodes of the {len(seeds)} "
+            f"asked for (seed s plays {lo} + s mod {hi - lo}); repeated episodes are not independent samples: "
+            "widen episode_seeds or lower --episodes")
+
+
+def check_episode_starts(tasks: Sequence[str], planners: dict[str, Any], seed: int,
+                         env_overrides: dict[str, Any]) -> None:
+    """Reset every task's env for episode ``seed`` and every planner on it (no decision).
+
+    Raises:
+        ValueError: naming task and planner: a start that pays for no first move, a planner that
+            refuses the task (an attention checkpoint made for another ``pe_dim``), ...
+    """
+    from ..planners.episode import start_episode
+    from .runner import make_env
+
+    for task in tasks:
+        env = make_env(task, **env_overrides)
+        try:
+            try:
+                env.reset(seed=int(seed))
+            except ValueError as err:
+                raise ValueError(f"task {task}: {err}") from None
+            for spec, planner in planners.items():
+                try:
+                    start_episode(env, planner, seed)
+                except ValueError as err:
+                    raise ValueError(f"task {task}, planner {spec}: {err}") from None
+        finally:
+            env.close()
 
 
 def _no_duplicates(kind: str, items: Sequence[str]) -> None:
@@ -263,6 +447,6 @@ def describe_quick() -> str:
             f"planner overrides {overrides} (unless a --planners spec sets them)")
 
 
-__all__ = ["DEFAULT_EPISODES", "LEADERBOARD_DEFAULTS", "QUICK_EPISODES", "QUICK_OVERRIDES", "EpisodeJob", "Plan", "canonical_spec",
-           "default_planners", "describe_quick", "episode_seeds", "make_plan", "planner_fingerprint",
+__all__ = ["DEFAULT_EPISODES", "LEADERBOARD_DEFAULTS", "MAX_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES", "EpisodeJob", "Plan", "canonical_spec",
+           "default_planners", "check_episode_starts", "describe_quick", "episode_seeds", "make_plan", "planner_fingerprint",
            "report_times", "resolve_task"]

@@ -11,6 +11,11 @@ The paired comparison (:func:`paired_table`) sets each planner against a referen
 (``--reference``, default ``greedy``) on the same episodes: per task and report time, the mean
 difference of the reduction, its 95% paired bootstrap interval and the episodes won.
 
+Rows of the suite's reference planners that read the truth (:data:`~ipp_bench.planners.REFERENCE_PLANNERS`,
+the ``oracle``) are shown apart, below a marker row, and never bold: they show the room that
+knowing the true ROI opens, not a result a robot can reach. When one ran, a second paired table
+gives every planner's distance to it.
+
 Files written:
 
 ``leaderboard.md``
@@ -39,7 +44,9 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from ..data import write_atomically
 from ..envs import short_task_id
+from ..planners import is_reference
 from .results import read_results
 
 N_RESAMPLES = 2000
@@ -48,6 +55,8 @@ BOOTSTRAP_SEED = 0
 BOOTSTRAP_METHOD = "percentile"
 DEFAULT_REFERENCE = "greedy"
 NO_INTERVAL = "no interval: 1 episode"
+#: the marker row above the reference rows of the table
+REFERENCE_MARKER = "*reference, knows the true ROI (not a planner a robot can run; never ranked):*"
 
 REDUCTIONS = (("uncertainty_reduction_pct", "Uncertainty reduction"), ("rmse_reduction_pct", "RMSE reduction"))
 CURVES = (("trace_roi", "ROI trace of the covariance"), ("rmse_roi", "ROI RMSE"))
@@ -166,6 +175,16 @@ def resolve_reference(reference: str, planners: Sequence[str]) -> str | None:
     return named[0] if len(named) == 1 else None
 
 
+def _label(planner: str) -> str:
+    """The method cell: the spec, marked when the planner is a reference that reads the truth."""
+    return f"`{planner}` (reference)" if is_reference(planner) else f"`{planner}`"
+
+
+def ordered(planners: Sequence[str]) -> list[str]:
+    """``planners`` with the references that read the truth moved to the end (order kept otherwise)."""
+    return [p for p in planners if not is_reference(p)] + [p for p in planners if is_reference(p)]
+
+
 def paired_table(agg: Aggregate, reference: str, key: str = "uncertainty_reduction_pct") -> str:
     """Each planner minus ``reference`` on the same episodes (seeds), per task and report time:
     mean difference [95% paired bootstrap interval], episodes won / episodes paired."""
@@ -174,10 +193,10 @@ def paired_table(agg: Aggregate, reference: str, key: str = "uncertainty_reducti
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join([":--", ":--"] + ["--:"] * len(times)) + "|"]
     for task in agg.tasks:
         first = True
-        for planner in agg.planners:
+        for planner in ordered(agg.planners):
             if planner == reference or not agg.episodes(task, planner):
                 continue
-            row = [f"**{short_task(task)}**" if first else "", f"`{planner}`"]
+            row = [f"**{short_task(task)}**" if first else "", _label(planner)]
             first = False
             for t in times:
                 mine, ref = agg.by_seed(task, planner, t, key), agg.by_seed(task, reference, t, key)
@@ -203,16 +222,19 @@ def markdown_table(agg: Aggregate) -> str:
     header.append("Runtime per decision [s]")
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join([":--", ":--"] + ["--:"] * (len(header) - 2)) + "|"]
     for task in agg.tasks:
-        planners = [p for p in agg.planners if agg.episodes(task, p)]
+        planners = [p for p in ordered(agg.planners) if agg.episodes(task, p)]
+        ranked = [p for p in planners if not is_reference(p)]  # references are never "best"
         best: dict[tuple[str, float], set[str]] = {}
         for key, _ in REDUCTIONS:
             for t in times:
-                means = {p: s[0] for p in planners if (s := agg.stat(task, p, t, key))}
+                means = {p: s[0] for p in ranked if (s := agg.stat(task, p, t, key))}
                 best[(key, t)] = _best(means, _pct, lowest=False)
-        runtime_means = {p: s[0] for p in planners if (s := agg.runtime_stat(task, p))}
+        runtime_means = {p: s[0] for p in ranked if (s := agg.runtime_stat(task, p))}
         best_runtime = _best(runtime_means, _seconds, lowest=True)
         for i, planner in enumerate(planners):
-            row = [f"**{short_task(task)}**" if i == 0 else "", f"`{planner}`"]
+            if is_reference(planner) and (i == 0 or not is_reference(planners[i - 1])):
+                lines.append("| " + " | ".join(["", REFERENCE_MARKER] + [""] * (len(header) - 2)) + " |")
+            row = [f"**{short_task(task)}**" if i == 0 else "", _label(planner)]
             for key, _ in REDUCTIONS:
                 for t in times:
                     row.append(_cell(agg.stat(task, planner, t, key), _pct, "%", planner in best[(key, t)]))
@@ -229,11 +251,11 @@ def final_table(agg: Aggregate) -> str:
         if not agg.times.get(task):
             continue
         t = agg.times[task][-1]
-        for i, planner in enumerate(p for p in agg.planners if agg.episodes(task, p)):
+        for i, planner in enumerate(p for p in ordered(agg.planners) if agg.episodes(task, p)):
             trace = agg.stat(task, planner, t, "trace_roi")
             rmse = agg.stat(task, planner, t, "rmse_roi")
             lines.append("| " + " | ".join([
-                f"**{short_task(task)}**" if i == 0 else "", f"`{planner}`", f"{t:g}",
+                f"**{short_task(task)}**" if i == 0 else "", _label(planner), f"{t:g}",
                 _cell(trace, lambda x: f"{x:.3g}", "", False), _cell(rmse, lambda x: f"{x:.3f}", "", False),
                 str(agg.episodes(task, planner))]) + " |")
     return "\n".join(lines) + "\n"
@@ -254,6 +276,13 @@ def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = Fa
         "Reductions are relative to the prior, over the region of interest. Bold: the best per task and column "
         "(highest reduction, lowest runtime). Runtime per decision: wall time of the planner's decision, "
         "mean over each episode's decisions, then over episodes.")
+    truth_refs = [p for p in agg.planners if is_reference(p)]
+    if truth_refs:
+        legend += (
+            " Rows marked (reference), below the marker row, read the ground truth's region of interest "
+            "(`oracle`: greedy's rule scored on the true ROI); they are never bold and never ranked. They "
+            "indicate the room that knowing where the ROI lies opens above the planners that cannot; they "
+            "are no upper bound (a planner that looks further ahead can beat them).")
     parts += [legend, "", markdown_table(agg)]
     ref = resolve_reference(reference, agg.planners) if reference else None
     if ref is not None and len(agg.planners) > 1:
@@ -269,6 +298,19 @@ def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = Fa
     elif reference:
         parts += [f"No paired comparison: the reference planner `{reference}` is not among the planners "
                   "(pass --reference SPEC).", ""]
+    for oracle in truth_refs:
+        if oracle == ref or len(agg.planners) < 2:
+            continue
+        for key, label in REDUCTIONS:
+            parts += [
+                f"## {label}: each planner minus `{oracle}` (the headroom reference), on the same episodes",
+                "",
+                f"How far each planner is from `{oracle}`, which knows the true ROI: mean difference in percentage "
+                f"points [{LEVEL:.0%} paired {BOOTSTRAP_METHOD} bootstrap interval], and the episodes where the "
+                f"planner's reduction is higher than `{oracle}`'s.",
+                "",
+                paired_table(agg, oracle, key),
+            ]
     parts += ["## Absolute values at the end of the mission", "", final_table(agg)]
     if notes:
         parts += [f"Note: {n}" for n in notes] + [""]
@@ -308,7 +350,9 @@ def plot_curves(agg: Aggregate, task: str, path: str | Path) -> Path:
                 continue
             stats = [(m, m if lo is None else lo, m if hi is None else hi) for m, lo, hi in stats]  # 1 episode
             mean, low, high = (np.array(v) for v in zip(*stats))
-            ax.plot(times, mean, marker="o", color=colours[planner], label=planner)
+            dashed = is_reference(planner)
+            ax.plot(times, mean, marker="o", color=colours[planner], linestyle="--" if dashed else "-",
+                    label=f"{planner} (reference, knows the true ROI)" if dashed else planner)
             ax.fill_between(times, low, high, color=colours[planner], alpha=0.2, linewidth=0)
         ax.set_xlabel("mission time [s]")
         ax.set_ylabel(label)
@@ -316,7 +360,7 @@ def plot_curves(agg: Aggregate, task: str, path: str | Path) -> Path:
     axes[0].legend(fontsize="small")
     fig.suptitle(f"{short_task(task)}: mean and {LEVEL:.0%} bootstrap band over episodes")
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     return path
 
 
@@ -344,7 +388,7 @@ def plot_runtime(agg: Aggregate, path: str | Path) -> Path:
     ax.legend(fontsize="small")
     ax.set_title("Runtime per decision: mean over episodes, 95% bootstrap interval", fontsize="medium")
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     return path
 
 
@@ -377,7 +421,8 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
         for note in notes:
             log(f"note: {note}")
     md = out_dir / "leaderboard.md"
-    md.write_text(markdown_report(agg, command, quick, [p.name for p in written], reference, notes))
+    text = markdown_report(agg, command, quick, [p.name for p in written], reference, notes)
+    write_atomically(md, lambda tmp: tmp.write_text(text))
     return [md, *written]
 
 

@@ -34,13 +34,12 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from ..data import check_output_dir
+from ..data import OutputWriteError, check_output_dir, write_atomically
 from ..mission import REPORT_KEYS
-from .plan import Plan, report_times
+from .plan import Plan, fingerprint_differences, report_times
 
 RESULTS_CSV = "results.csv"
 RUN_JSON = "run.json"
-LOCK_FILE = ".lock"
 FORMAT_VERSION = 1
 #: fingerprint keys that older folders lack: filled in (with a note) instead of refusing the folder
 ADDED_FINGERPRINT_KEYS = ("planner_fingerprints",)
@@ -146,8 +145,11 @@ class ResultsStore:
             check_output_dir(self.dir)
         except ValueError as err:
             raise ResultsMismatchError(str(err)) from None
-        self._created = not self.dir.exists()
-        self.dir.mkdir(parents=True, exist_ok=True)
+        try:  # atomic: of two runs starting at once on a new folder, exactly one created it
+            self.dir.mkdir(parents=True)
+            self._created = True
+        except FileExistsError:
+            self._created = False
         try:
             self._lock()
             self._check_fingerprint()
@@ -161,18 +163,28 @@ class ResultsStore:
         self._close(failed=exc_type is not None)
 
     def _close(self, failed: bool) -> None:
-        if self._lock_fd is not None:
-            os.close(self._lock_fd)  # releases the flock
-            self._lock_fd = None
+        """Unlock; a run that failed before writing anything removes the folder it created, but
+        only while it holds the lock: a run that lost the lock touches nothing (the folder is the
+        winner's now, even if this run made it)."""
+        if self._lock_fd is None:
+            return
         if failed and self._created and not self.run_json.exists():  # leave nothing behind
             shutil.rmtree(self.dir, ignore_errors=True)
+        os.close(self._lock_fd)  # releases the flock
+        self._lock_fd = None
 
     def _lock(self) -> None:
+        """Lock the folder itself (flock on its descriptor): no lock file is created or left."""
         try:
             import fcntl
         except ImportError:  # pragma: no cover (Windows): no lock
             return
-        fd = os.open(self.dir / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(self.dir, os.O_RDONLY)
+        except FileNotFoundError:  # a run that made it a moment ago failed and removed it
+            raise ResultsMismatchError(
+                f"{self.dir} was removed by another leaderboard run that started at the same moment and "
+                "failed; run the command again") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -216,11 +228,11 @@ class ResultsStore:
             self._refuse_unfingerprinted_rows(fingerprint.get("planner_fingerprints") or {})
         for k in added:
             stored[k] = fingerprint[k]
-        differing = [k for k in sorted(set(stored) | set(fingerprint)) if stored.get(k) != fingerprint.get(k)]
-        if differing:
-            lines = [f"  {k}: there {_short(stored.get(k))}, now {_short(fingerprint.get(k))}" for k in differing]
+        differences = fingerprint_differences(stored, fingerprint)
+        if differences:
+            lines = [f"  {k}: {line}" for k, ls in differences.items() for line in ls]
             raise ResultsMismatchError(
-                f"{self.dir} holds results made with different arguments ({', '.join(differing)}):\n"
+                f"{self.dir} holds results made with different arguments ({', '.join(differences)}):\n"
                 + "\n".join(lines)
                 + f"\nTo resume that run, repeat its arguments ({RUN_JSON} has them); for these arguments "
                 f"pass a new --out DIR (or delete {self.dir}). Results of different arguments are never mixed.")
@@ -230,7 +242,13 @@ class ResultsStore:
                 f"would drop some: pass --episodes {stored_episodes} or more (more episodes extend the folder)")
         if added:
             self.notes.append(f"{RUN_JSON} predates {', '.join(added)}; recorded them now")
-        if added or self.plan.episodes != stored_episodes or "episodes" in stored_meta.get("fingerprint", {}):
+        # the same arguments, recorded another way (digests of the task configs, fields added since
+        # at their defaults, 30 for 30.0): record them as today's code does
+        rerecord = stored != fingerprint
+        if rerecord and not added:
+            self.notes.append(f"{RUN_JSON} records the same arguments in an older form; rewrote it in today's")
+        if (added or rerecord or self.plan.episodes != stored_episodes
+                or "episodes" in stored_meta.get("fingerprint", {})):
             if self.plan.episodes != stored_episodes:
                 self.notes.append(f"extending {self.dir} from {stored_episodes} to {self.plan.episodes} episodes "
                                   "per task and planner (the first seeds are the same)")
@@ -298,15 +316,18 @@ class ResultsStore:
     def append(self, rows: list[dict[str, Any]]) -> None:
         """Append one episode's rows: one write of whole lines, flushed and fsync'ed."""
         data = format_rows(rows).encode()
-        fd = os.open(self.csv_path, os.O_WRONLY | os.O_APPEND)
         try:
-            view = memoryview(data)
-            while view:
-                n = os.write(fd, view)
-                view = view[n:]
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+            fd = os.open(self.csv_path, os.O_WRONLY | os.O_APPEND)
+            try:
+                view = memoryview(data)
+                while view:
+                    n = os.write(fd, view)
+                    view = view[n:]
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except OSError as err:  # a torn line at most: the resume drops it
+            raise OutputWriteError(f"cannot write {self.csv_path}: {err.strerror or err}") from None
         key = (rows[0]["task"], rows[0]["planner"], rows[0]["seed"])
         self.done[key] = rows
 
@@ -326,18 +347,8 @@ class ResultsStore:
         return self.plan.quick
 
 
-def _short(value: Any, limit: int = 200) -> str:
-    text = json.dumps(value, sort_keys=True, default=str)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    write_atomically(path, lambda tmp: tmp.write_text(text))
     try:  # make the rename itself durable
         dfd = os.open(path.parent, os.O_RDONLY)
     except OSError:  # pragma: no cover

@@ -23,7 +23,7 @@ import typing
 from importlib.metadata import entry_points
 from typing import Any
 
-from .base import ContinuousPlanner, GraphPlanner, Planner, RobotView
+from .base import ContinuousPlanner, GraphPlanner, Planner, RobotView, TruthView
 
 # name -> "module:Class"; the class has a ``Config`` dataclass attribute.
 REGISTRY: dict[str, str] = {
@@ -33,7 +33,11 @@ REGISTRY: dict[str, str] = {
     "mcts": "ipp_bench.planners.mcts:MCTSPlanner",
     "cmaes": "ipp_bench.planners.cmaes:CMAESPlanner",
     "attention": "ipp_bench.policies.planner:AttentionPlanner",
+    "oracle": "ipp_bench.planners.oracle:OraclePlanner",
 }
+#: reference planners: they read the true ROI (a :class:`~ipp_bench.planners.base.TruthView`) to
+#: show the room above the planners that cannot; reports show them apart, never as the best
+REFERENCE_PLANNERS: tuple[str, ...] = ("oracle",)
 ENTRY_POINT_GROUP = "ipp_bench.planners"
 _plugins_loaded = False
 
@@ -65,8 +69,11 @@ def planner_class(name: str) -> type:
         target = REGISTRY[name]
     except KeyError:
         raise ValueError(f"unknown planner {name!r}: valid are {planner_names()}") from None
-    module, cls = target.split(":")
-    return getattr(importlib.import_module(module), cls)
+    module, _, cls = target.partition(":")
+    try:
+        return getattr(importlib.import_module(module), cls)
+    except AttributeError:
+        raise ValueError(f"planner {name!r}: {module} has no {cls!r} (registered as {target!r})") from None
 
 
 def split_specs(items: typing.Iterable[str]) -> list[str]:
@@ -124,7 +131,11 @@ def _coerce(value: Any, kind: Any, where: str) -> Any:
 def make_config(name: str, overrides: dict[str, Any] | None = None) -> Any:
     """The planner's config dataclass with ``overrides`` (strings are converted to the field type)."""
     cls = planner_class(name)
-    Config = cls.Config
+    Config = getattr(cls, "Config", None)
+    if not (isinstance(Config, type) and dataclasses.is_dataclass(Config)):
+        raise ValueError(f"planner {name!r} ({REGISTRY[name]}) has no Config dataclass: a planner class "
+                         "needs one, e.g. 'Config = MyConfig' with @dataclass(frozen=True) class MyConfig "
+                         "(empty if it has no settings; see docs/planners.md)")
     overrides = dict(overrides or {})
     hints = typing.get_type_hints(Config)
     fields = {f.name for f in dataclasses.fields(Config)}
@@ -135,6 +146,32 @@ def make_config(name: str, overrides: dict[str, Any] | None = None) -> Any:
     return Config(**values)
 
 
+def is_reference(spec: str) -> bool:
+    """Whether the planner of ``spec`` (``"oracle"``, ``"oracle:..."``) is a reference that reads the truth."""
+    return parse_spec(spec)[0] in REFERENCE_PLANNERS
+
+
+def view_for(planner: Any, env: Any) -> RobotView:
+    """The view ``planner`` gets of ``env``: a :class:`TruthView` for the suite's reference planners,
+    a :class:`RobotView` (no ground truth) for every other.
+
+    Raises:
+        ValueError: a planner that asks to read the truth (``reads_truth``) but is not one of
+            :data:`REFERENCE_PLANNERS` registered here (a plugin cannot grant itself the truth).
+    """
+    if not getattr(planner, "reads_truth", False):
+        return RobotView(env)
+    name = getattr(planner, "name", "?")
+    target = REGISTRY.get(name, "")
+    module, _, cls = target.partition(":")
+    own = (name in REFERENCE_PLANNERS and type(planner).__module__ == module
+           and type(planner).__name__ == cls)
+    if not own:
+        raise ValueError(f"planner {name!r} sets reads_truth, but only the suite's reference planners "
+                         f"{list(REFERENCE_PLANNERS)} may read the ground truth")
+    return TruthView(env)
+
+
 def make_planner(spec: str, **overrides: Any):
     """A planner from ``"name[:key=value,...]"``; keyword overrides win over the spec's."""
     name, spec_overrides = parse_spec(spec)
@@ -142,5 +179,5 @@ def make_planner(spec: str, **overrides: Any):
     return cls(make_config(name, {**spec_overrides, **overrides}))
 
 
-__all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "REGISTRY", "ENTRY_POINT_GROUP", "register",
-           "planner_names", "planner_class", "split_specs", "parse_spec", "make_config", "make_planner"]
+__all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "TruthView", "REGISTRY", "REFERENCE_PLANNERS",
+           "ENTRY_POINT_GROUP", "register", "is_reference", "view_for", "planner_names", "planner_class", "split_specs", "parse_spec", "make_config", "make_planner"]

@@ -133,6 +133,22 @@ class RobotView:
         return M.trace_roi(variance, roi)
 
 
+class TruthView(RobotView):
+    """The robot's view plus one piece of the ground truth: the evaluation ROI mask.
+
+    Made only for the suite's reference planners (:data:`~ipp_bench.planners.REFERENCE_PLANNERS`,
+    whose class sets ``reads_truth = True``), which show how much knowing where the region of
+    interest lies is worth. It holds the true ROI (the cells the metrics are computed on), not the
+    field values, so what such a planner knows stays small and explicit (a training run may use it
+    as a privileged teacher or critic input, knowingly). Ordinary planners get a
+    :class:`RobotView`, which has no way to it.
+    """
+
+    def true_roi(self) -> np.ndarray:
+        """(n_cells,) bool, row-major: the cells whose true value is at least ``mu_th`` (a copy)."""
+        return self._env.mission.eval_roi.copy()
+
+
 @runtime_checkable
 class Planner(Protocol):
     """One decision at a time.
@@ -158,6 +174,9 @@ class _PlannerBase:
 
     name: ClassVar[str] = "base"
     kind: ClassVar[str] = "base"
+    #: a reference planner that reads the true ROI (given a :class:`TruthView`); only the suite's
+    #: own reference planners may set it (:func:`~ipp_bench.planners.view_for`)
+    reads_truth: ClassVar[bool] = False
 
     def __init__(self, settings: Any = None):
         self.settings = settings

@@ -9,11 +9,11 @@ the remaining budget. The first waypoint is flown; the rest warm-starts the next
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import check_integer, check_number
 from .base import MIN_FLIGHT_M, ContinuousPlanner
 
 
@@ -36,18 +36,11 @@ class CMAESConfig:
     min_leg_m: float = 2.5  # [m]
 
     def __post_init__(self):
-        def bad(name, valid):
-            raise ValueError(f"cmaes.{name} = {getattr(self, name)!r} is invalid: expected {valid}")
-        if not (isinstance(self.n_waypoints, int) and self.n_waypoints >= 1):
-            bad("n_waypoints", "an integer >= 1")
-        if not (isinstance(self.popsize, int) and self.popsize >= 2):
-            bad("popsize", "an integer >= 2")
-        if not (isinstance(self.max_evals, int) and self.max_evals >= self.popsize):
-            bad("max_evals", f"an integer >= popsize ({self.popsize})")
-        if not 0.0 < self.sigma0 <= 1.0:
-            bad("sigma0", "a number in (0, 1]")
-        if not (math.isfinite(self.min_leg_m) and self.min_leg_m > 0):
-            bad("min_leg_m", "a number > 0 [m]")
+        check_integer("cmaes.n_waypoints", self.n_waypoints, 1, 100)
+        check_integer("cmaes.popsize", self.popsize, 2, 10_000)
+        check_integer("cmaes.max_evals", self.max_evals, self.popsize, 10_000_000)
+        check_number("cmaes.sigma0", self.sigma0, 0.0, 1.0, low_open=True)
+        check_number("cmaes.min_leg_m", self.min_leg_m, 0.0, low_open=True, unit="m")
 
 
 class CMAESPlanner(ContinuousPlanner):

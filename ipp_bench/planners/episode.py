@@ -20,8 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from . import make_planner
-from .base import RobotView
+from . import make_planner, view_for
 
 #: decisions after which an episode that has not ended is a planner bug
 MAX_DECISIONS = 100_000
@@ -90,6 +89,20 @@ class EpisodeResult:
         return out
 
 
+def start_episode(env, planner, seed: int, options: dict | None = None):
+    """Reset ``env`` and ``planner`` for episode ``seed``, as :func:`fly_episode` does before its
+    first decision; returns (planner, first observation).
+
+    A leaderboard calls it once per task and planner before its first episode, so that what an
+    episode's start refuses (a budget that pays for no first move, a checkpoint whose inputs do not
+    fit the task) is refused before anything is written.
+    """
+    agent = make_planner(planner) if isinstance(planner, str) else planner
+    obs, _ = env.reset(seed=int(seed), options=options)
+    agent.reset(view_for(agent, env), int(seed))
+    return agent, obs
+
+
 def fly_episode(env, planner, seed: int, *, options: dict | None = None,
                 on_reset: Callable[[Any], None] | None = None,
                 on_decision: Callable[[Decision], None] | None = None) -> EpisodeResult:
@@ -107,10 +120,8 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
     Raises:
         RuntimeError: the planner made :data:`MAX_DECISIONS` decisions without ending the episode.
     """
-    agent = make_planner(planner) if isinstance(planner, str) else planner
+    agent, obs = start_episode(env, planner, seed, options)
     label = planner if isinstance(planner, str) else agent.name
-    obs, _ = env.reset(seed=int(seed), options=options)
-    agent.reset(RobotView(env), int(seed))
     if on_reset is not None:
         on_reset(env)
     times: list[float] = []

@@ -41,10 +41,12 @@ def leg_batch(view, node: int) -> LegBatch:
     return batch
 
 
-def greedy_scores(view, node: int) -> np.ndarray:
+def greedy_scores(view, node: int, roi: np.ndarray | None = None) -> np.ndarray:
     """(k,) predicted ROI trace reduction per second of flight of the leg to each neighbour of ``node``
-    (from the view's position), unmasked: greedy's score."""
-    gains = trace_reductions(view.belief.cov, leg_batch(view, node), view.belief_roi())
+    (from the view's position), unmasked: greedy's score. The ROI is the belief's (``roi=None``) or
+    the mask given (the ``oracle`` reference passes the true one)."""
+    roi = view.belief_roi() if roi is None else roi
+    gains = trace_reductions(view.belief.cov, leg_batch(view, node), roi)
     return gains / view.neighbour_durations(node, view.position)
 
 
@@ -54,9 +56,13 @@ class GreedyPlanner(GraphPlanner):
     name = "greedy"
     Config = GreedyConfig
 
+    def roi(self) -> np.ndarray | None:
+        """The ROI the score is computed on: None, the belief's (``mu + beta sigma >= mu_th``)."""
+        return None
+
     def scores(self, obs) -> np.ndarray:
         """Predicted ROI trace reduction per second for each neighbour (-inf where masked)."""
-        scores = greedy_scores(self.view, int(obs["current_node"][0]))
+        scores = greedy_scores(self.view, int(obs["current_node"][0]), self.roi())
         return np.where(obs["action_mask"].astype(bool), scores, -np.inf)
 
     def act(self, obs):

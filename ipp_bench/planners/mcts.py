@@ -31,9 +31,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..belief import LegBatch, downdate_inplace, gain_factor, trace_reductions
+from ..config import check_integer, check_number
 from ..mission import TIME_TOL_S
 from ..sensor import stack
 from .base import GraphPlanner, softmax
+
+
+#: the most simulations per decision (a decision at 10^5 takes about half an hour)
+MAX_SIMULATIONS = 100_000
 
 
 @dataclass(frozen=True)
@@ -63,26 +68,16 @@ class MCTSConfig:
     rollout_lambda: float = 8.0
 
     def __post_init__(self):
-        def bad(name, valid):
-            raise ValueError(f"mcts.{name} = {getattr(self, name)!r} is invalid: expected {valid}")
-        if not (isinstance(self.simulations, int) and self.simulations >= 1):
-            bad("simulations", "an integer >= 1")
-        if self.time_limit_s is not None and not (math.isfinite(self.time_limit_s) and self.time_limit_s > 0):
-            bad("time_limit_s", "None or a number > 0 [s]")
-        if not (math.isfinite(self.horizon_s) and self.horizon_s > 0):
-            bad("horizon_s", "a number > 0 [s]")
-        if not 0.0 < self.gamma <= 1.0:
-            bad("gamma", "a number in (0, 1]")
-        if not (math.isfinite(self.discount_period_s) and self.discount_period_s > 0):
-            bad("discount_period_s", "a number > 0 [s]")
-        if not (math.isfinite(self.exploration) and self.exploration >= 0):
-            bad("exploration", "a number >= 0")
-        if not (math.isfinite(self.pw_k) and self.pw_k >= 1):
-            bad("pw_k", "a number >= 1")
-        if not 0.0 <= self.pw_alpha <= 1.0:
-            bad("pw_alpha", "a number in [0, 1]")
-        if not (math.isfinite(self.rollout_lambda) and self.rollout_lambda >= 0):
-            bad("rollout_lambda", "a number >= 0")
+        check_integer("mcts.simulations", self.simulations, 1, MAX_SIMULATIONS)
+        if self.time_limit_s is not None:
+            check_number("mcts.time_limit_s", self.time_limit_s, 0.0, low_open=True, unit="s")
+        check_number("mcts.horizon_s", self.horizon_s, 0.0, low_open=True, unit="s")
+        check_number("mcts.gamma", self.gamma, 0.0, 1.0, low_open=True)
+        check_number("mcts.discount_period_s", self.discount_period_s, 0.0, low_open=True, unit="s")
+        check_number("mcts.exploration", self.exploration, 0.0)
+        check_number("mcts.pw_k", self.pw_k, 1.0)
+        check_number("mcts.pw_alpha", self.pw_alpha, 0.0, 1.0)
+        check_number("mcts.rollout_lambda", self.rollout_lambda, 0.0)
 
 
 class _State:

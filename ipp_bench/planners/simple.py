@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import check_number
 from .base import ContinuousPlanner, GraphPlanner
 
 
@@ -38,10 +39,9 @@ class CoverageConfig:
     overlap: float = 0.0  # [-]
 
     def __post_init__(self):
-        if self.altitude is not None and not (math.isfinite(self.altitude) and self.altitude > 0):
-            raise ValueError(f"coverage.altitude = {self.altitude!r} is invalid: expected None or > 0 [m]")
-        if not 0.0 <= self.overlap < 1.0:
-            raise ValueError(f"coverage.overlap = {self.overlap!r} is invalid: expected a number in [0, 1)")
+        if self.altitude is not None:
+            check_number("coverage.altitude", self.altitude, 0.0, low_open=True, unit="m")
+        check_number("coverage.overlap", self.overlap, 0.0, 1.0, high_open=True)
 
 
 class CoveragePlanner(ContinuousPlanner):

@@ -25,4 +25,25 @@ from ipp_bench.policies.checkpoint import (
 )
 from ipp_bench.policies.network import AttentionNet, NetConfig
 
-__all__ = ["SHIPPED_CHECKPOINT", "AttentionNet", "CheckpointError", "NetConfig", "load_checkpoint", "save_checkpoint"]
+_LAZY = {  # name -> (module, what it needs): imported on first use, so that torch alone suffices here
+    "AttentionPolicy": ("ipp_bench.policies.sb3", "stable-baselines3 and sb3-contrib"),
+    "AttentionPlanner": ("ipp_bench.policies.planner", "torch"),
+}
+
+
+def __getattr__(name: str):
+    """``from ipp_bench.policies import AttentionPolicy`` (the SB3 policy; needs the ``[train]`` extra)."""
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    module, needs = _LAZY[name]
+    import importlib
+
+    try:
+        return getattr(importlib.import_module(module), name)
+    except ImportError as err:
+        raise ImportError(f"ipp_bench.policies.{name} needs {needs} ({err}): "
+                          'pip install "ipp-bench[train]"') from None
+
+
+__all__ = ["SHIPPED_CHECKPOINT", "AttentionNet", "AttentionPlanner", "AttentionPolicy", "CheckpointError", "NetConfig",
+           "load_checkpoint", "save_checkpoint"]

@@ -13,6 +13,7 @@ during a run and exports this format at the end (``export.pt`` in the run folder
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -72,19 +73,62 @@ def load_checkpoint(path: str | Path | None = None, device: str | torch.device =
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
         raise CheckpointError(f"checkpoint {path} has format {found!r}; expected {expected}")
+    net_config, state, meta = payload.get("net_config"), payload.get("state_dict"), payload.get("meta", {})
+    if not isinstance(net_config, dict):
+        raise CheckpointError(f"checkpoint {path}: net_config is {type(net_config).__name__}, expected a dict "
+                              "of NetConfig fields")
     try:
-        cfg = NetConfig.from_dict(payload["net_config"])
+        cfg = NetConfig.from_dict(net_config)
     except (KeyError, TypeError, ValueError) as err:
         raise CheckpointError(f"checkpoint {path} has an invalid net_config ({err})") from None
+    if not isinstance(state, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor)
+                                              for k, v in state.items()):
+        raise CheckpointError(f"checkpoint {path}: state_dict is {type(state).__name__}, expected a dict of "
+                              "named tensors")
+    if meta is None:
+        meta = {}
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"checkpoint {path}: meta is {type(meta).__name__}, expected a dict")
+    _check_shapes(path, cfg, state)
+    bad = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if bad:
+        raise CheckpointError(f"checkpoint {path} has non-finite weights (NaN or inf) in {', '.join(bad[:3])}"
+                              + (f" and {len(bad) - 3} more tensors" if len(bad) > 3 else "")
+                              + ": a diverged training run; export an earlier one")
     net = AttentionNet(cfg)
     try:
-        net.load_state_dict(payload["state_dict"], strict=True)
-    except (KeyError, RuntimeError) as err:
+        net.load_state_dict(state, strict=True)
+    except (KeyError, RuntimeError, TypeError, ValueError) as err:
         first = str(err).strip().splitlines()
         why = " ".join(line.strip() for line in first[1:3]) if len(first) > 1 else (first[0] if first else "")
         raise CheckpointError(f"checkpoint {path} does not fit AttentionNet({cfg}): {why}") from None
     net.to(device).eval()
-    return net, dict(payload.get("meta") or {})
+    return net, dict(meta)
+
+
+#: the most parameters a checkpoint's network may have (the shipped one has ~0.6 M)
+MAX_PARAMETERS = 200_000_000
+
+
+def _check_shapes(path: Path, cfg: NetConfig, state: dict[str, torch.Tensor]) -> None:
+    """Compare ``state`` with the network ``cfg`` describes, built on torch's ``meta`` device (no
+    memory), so that a net_config of absurd sizes is refused before anything is allocated."""
+    try:
+        with torch.device("meta"):
+            shapes = {k: tuple(v.shape) for k, v in AttentionNet(cfg).state_dict().items()}
+    except (RuntimeError, ValueError, TypeError) as err:
+        raise CheckpointError(f"checkpoint {path}: its net_config {cfg} cannot be built ({err})") from None
+    n = sum(math.prod(s) for s in shapes.values())
+    if n > MAX_PARAMETERS:
+        raise CheckpointError(f"checkpoint {path}: its net_config describes {n:.3g} parameters, more than the "
+                              f"{MAX_PARAMETERS:.3g} an attention checkpoint may have")
+    missing = sorted(set(shapes) - set(state))
+    unexpected = sorted(set(state) - set(shapes))
+    wrong = [k for k in shapes if k in state and tuple(state[k].shape) != shapes[k]]
+    if missing or unexpected or wrong:
+        what = ([f"missing {missing[:3]}"] if missing else []) + ([f"unexpected {unexpected[:3]}"] if unexpected else [])
+        what += [f"{k} is {tuple(state[k].shape)}, expected {shapes[k]}" for k in wrong[:2]]
+        raise CheckpointError(f"checkpoint {path} does not fit AttentionNet({cfg}): {'; '.join(what)}")
 
 
 def check_feature_dims(cfg: NetConfig, node_dim: int, pe_dim: int, source: str = "checkpoint") -> None:

@@ -47,6 +47,29 @@ class AttentionConfig:
                 raise ValueError(f"attention.threads = {self.threads!r} is invalid: expected an integer >= 0")
 
 
+def resolve_device(torch, device: str):
+    """``torch.device(device)`` if this machine has it, else ValueError (one line, what is valid)."""
+    try:
+        dev = torch.device(str(device))
+    except (RuntimeError, TypeError, ValueError):
+        raise ValueError(f"attention.device = {device!r} is invalid: expected 'cpu', 'cuda', 'cuda:N' or 'mps'") from None
+    if dev.type == "cpu":
+        return dev
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"attention.device = {device!r} is unavailable: torch {torch.__version__} sees no "
+                             "CUDA device here; use device=cpu")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ValueError(f"attention.device = {device!r} is unavailable: this machine has "
+                             f"{torch.cuda.device_count()} CUDA devices (cuda:0..cuda:{torch.cuda.device_count() - 1})")
+        return dev
+    if dev.type == "mps":
+        if not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
+            raise ValueError(f"attention.device = {device!r} is unavailable: no MPS device here; use device=cpu")
+        return dev
+    raise ValueError(f"attention.device = {device!r} is invalid: expected 'cpu', 'cuda', 'cuda:N' or 'mps'")
+
+
 class AttentionPlanner(GraphPlanner):
     """Attention encoder / pointer decoder policy (paper Section IV-B), one forward pass per decision."""
 
@@ -72,7 +95,7 @@ class AttentionPlanner(GraphPlanner):
         self._torch = torch
         if config.threads:
             torch.set_num_threads(config.threads)
-        self.device = torch.device(config.device)
+        self.device = resolve_device(torch, config.device)
         if net is None:
             from .checkpoint import SHIPPED_CHECKPOINT
 

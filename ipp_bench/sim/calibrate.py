@@ -132,7 +132,7 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
 
     spec = task_spec(task_id)
     cfg = spec.config
-    sim = SimConfig.from_dict(spec.sim) if spec.sim is not None else SimConfig()
+    sim = SimConfig.from_dict(spec.sim) if spec.sim else SimConfig()
     if image_size is not None:
         sim = sim.with_image_size(image_size)
     world = WeedWorld(cfg.grid, cfg.sensor, cfg.mission.speed, sim)

@@ -12,8 +12,28 @@ def test_registry_has_the_paper_tasks():
     v0 = {"ipp_bench/Grid15-v0", "ipp_bench/Grid15Eval-v0", "ipp_bench/Grid20Eval-v0"}
     assert v0 <= set(tagged("v0"))
     assert "ipp_bench/Grid15-v0" in tagged("train")
-    assert set(tagged("benchmark")) == {"ipp_bench/Grid15Eval-v1", "ipp_bench/Grid20Eval-v1", "ipp_bench/Grid30Eval-v1"}
-    assert {"ipp_bench/Grid15Train-v1", "ipp_bench/Grid30Train-v1"} <= set(tagged("train"))
+    v1 = {"ipp_bench/Grid15Eval-v1", "ipp_bench/Grid20Eval-v1", "ipp_bench/Grid30Eval-v1"}
+    v2 = {"ipp_bench/Hotspots15Eval-v2", "ipp_bench/Hotspots30Eval-v2"}
+    assert set(tagged("benchmark")) == v1 | v2  # the leaderboard's default task list: v1 and v2
+    assert v2 <= set(tagged("v2"))
+    assert {"ipp_bench/Grid15Train-v1", "ipp_bench/Grid30Train-v1", "ipp_bench/Hotspots15Train-v2",
+            "ipp_bench/Hotspots30Train-v2"} <= set(tagged("train"))
+
+
+def test_v2_tasks_are_sparse_hotspots_with_a_fitted_mean():
+    """Weed patches whose ROI (truth >= mu_th) is a minority of the cells, a prior mean fitted far below
+    the paper's 0.5, and a belief ROI that covers the whole map before the first look."""
+    from ipp_bench.fields import make_field
+    for task in ("ipp_bench/Hotspots15Eval-v2", "ipp_bench/Hotspots30Eval-v2"):
+        cfg = envs.TASKS[task].config
+        assert cfg.mission.field == "weed_patches" and cfg.gp.prior_mean < 0.1
+        fractions = [np.mean(make_field("weed_patches", cfg.grid, np.random.default_rng(s)) >= cfg.mission.mu_th)
+                     for s in range(50)]
+        assert 0 < min(fractions) and max(fractions) < 0.5
+        sigma = np.sqrt(cfg.gp.signal_variance + cfg.gp.nugget)
+        assert cfg.gp.prior_mean + cfg.mission.beta * sigma > cfg.mission.mu_th + 0.1
+        train = envs.TASKS[task.replace("Eval", "Train")].config
+        assert train.replace(episode_seeds=cfg.mission.episode_seeds) == cfg  # the same task on other seeds
 
 
 def test_registration_is_idempotent():
@@ -34,7 +54,8 @@ def test_import_ipp_bench_registers_the_tasks():
 def test_training_seeds_never_meet_evaluation_seeds():
     """Every v1 training task plays episode seeds that no evaluation task (nor the leaderboard) can."""
     from ipp_bench.eval.leaderboard import episode_seeds
-    train = [envs.TASKS[t].config.mission.episode_seeds for t in tagged("train") if "v1" in envs.TASKS[t].tags]
+    train = [envs.TASKS[t].config.mission.episode_seeds for t in tagged("train")
+             if {"v1", "v2"} & set(envs.TASKS[t].tags)]
     evals = [envs.TASKS[t].config.mission.episode_seeds for t in tagged("benchmark")]
     assert train and evals
     for lo, hi in train:
@@ -61,3 +82,87 @@ def test_task_lookup_and_overrides():
         envs.task_spec("Nope-v0")
     with pytest.raises(ValueError, match="is not KEY=VALUE"):
         envs.parse_overrides(["budget_s"])
+
+
+# -- task files (issue 19) --------------------------------------------------------------------------
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from ipp_bench.envs.registry import TaskFileError, TaskFileWarning, discover, load_task  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+GOOD = (REPO / "tasks" / "grid15_eval_v1.toml").read_text()
+
+BROKEN = {  # file content -> (line, what the report says)
+    "syntax": ("id = 'ipp_bench/A-v0'\nentry_point = [\n", 2, "TOML syntax error"),
+    "binary": (b"\x89PNG\r\n\x1a\n\x00\xff", None, "not a UTF-8 text file"),
+    "no-id": (GOOD.replace('id = "ipp_bench/Grid15Eval-v1"\n', ""), None, "lacks ['id']"),
+    "id-not-string": (GOOD.replace('id = "ipp_bench/Grid15Eval-v1"', "id = 5"), 1, "id = 5 is invalid"),
+    "duplicate-id": (GOOD, 1, "is already defined by"),
+    "unknown-key": ("budget = 3\n" + GOOD, 1, "unknown key 'budget'"),
+    "float-k": (GOOD.replace("k = 20", "k = 20.0"), GOOD.splitlines().index("k = 20") + 1,
+                "graph.k = 20.0 is invalid: expected an integer"),
+    "unknown-field": (GOOD.replace("k = 20", "kk = 20"), GOOD.splitlines().index("k = 20") + 1,
+                      "unknown fields ['kk']"),
+}
+
+
+def _write(folder, name, content):
+    path = folder / f"{name}.toml"
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    return path
+
+
+@pytest.mark.parametrize("case", list(BROKEN))
+def test_a_broken_task_file_is_reported_and_the_others_still_load(case, tmp_path):
+    content, line, what = BROKEN[case]
+    _write(tmp_path, "a_good", GOOD)
+    bad = _write(tmp_path, f"b_{case}", content)
+    with pytest.warns(TaskFileWarning, match="this task file is skipped"):
+        specs, errors = discover(tmp_path)
+    assert list(specs) == ["ipp_bench/Grid15Eval-v1"]
+    assert len(errors) == 1 and what in errors[0], errors
+    assert errors[0].startswith(f"{bad}:{line}: " if line else f"{bad}: ")
+
+
+def test_a_users_task_file_loads_from_anywhere_and_runs(tmp_path):
+    path = _write(tmp_path, "mine", GOOD.replace("Grid15Eval-v1", "MyGrid-v0").replace("budget_s = 200.0",
+                                                                                      "budget_s = 30.0"))
+    task = load_task(path)
+    assert task == "ipp_bench/MyGrid-v0" and load_task(path) == task  # idempotent
+    env = gym.make(task).unwrapped
+    env.reset(seed=0)
+    assert env.config.mission.budget_s == 30.0
+    other = _write(tmp_path, "other", GOOD.replace("Grid15Eval-v1", "MyGrid-v0"))
+    with pytest.raises(TaskFileError, match="is already registered"):
+        load_task(other)
+    with pytest.raises(TaskFileError, match=r"mine2.toml:\d+: graph.k = 20.0"):
+        load_task(_write(tmp_path, "mine2", GOOD.replace("Grid15Eval-v1", "My2-v0").replace("k = 20", "k = 20.0")))
+
+
+def test_the_command_line_works_beside_a_broken_task_file_and_takes_a_task_path(tmp_path):
+    """A copy of the suite with a broken file in tasks/: --help, tasks and evaluate still work and
+    the broken file is named; --task path/to/mine.toml runs a user's task."""
+    root = tmp_path / "suite"
+    shutil.copytree(REPO / "ipp_bench", root / "ipp_bench", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(REPO / "tasks", root / "tasks")
+    shutil.copytree(REPO / "assets", root / "assets")
+    (root / "tasks" / "zz_broken.toml").write_text(GOOD.replace("k = 20", "k = 20.0").replace("Grid15Eval", "B"))
+    mine = _write(tmp_path, "mine", GOOD.replace("Grid15Eval-v1", "Mine-v0").replace("budget_s = 200.0",
+                                                                                     "budget_s = 30.0"))
+    env = {"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin", "MUJOCO_GL": "egl"}
+
+    def cli(*argv):
+        return subprocess.run([sys.executable, "-m", "ipp_bench.cli", *argv], cwd=root, env=env,
+                              capture_output=True, text=True, timeout=120)
+
+    helped = cli("--help")
+    assert helped.returncode == 0 and "leaderboard" in helped.stdout
+    assert "zz_broken.toml" in helped.stderr and "graph.k = 20.0 is invalid" in helped.stderr
+    listed = cli("tasks")
+    assert listed.returncode == 0 and "ipp_bench/Grid15Eval-v1" in listed.stdout
+    assert "skipped task file" in listed.stderr and "zz_broken.toml:" in listed.stderr
+    ran = cli("evaluate", "--task", str(mine), "--planner", "greedy")
+    assert ran.returncode == 0 and "ipp_bench/Mine-v0" in ran.stdout and "Traceback" not in ran.stderr, ran.stderr

@@ -36,3 +36,28 @@ def assert_same_results(got, want):
     if got != want:
         diff = [(a, b) for a, b in zip(got, want) if a != b][:3]
         raise AssertionError(f"{len(got)} vs {len(want)} rows; first differences (got, want): {diff}")
+
+
+class BoomPlanner:
+    """A plugin planner whose ``act()`` raises on the episode of seed ``FAIL_SEED`` (its 3rd decision)."""
+
+    FAIL_SEED = None  # set by the test
+    name = "boom"
+
+    from ipp_bench.planners.simple import RandomConfig as Config
+
+    def __init__(self, config=None):
+        from ipp_bench.planners.simple import RandomPlanner
+
+        self._inner = RandomPlanner()
+        self.kind = self._inner.kind
+
+    def reset(self, view, seed):
+        self._seed, self._calls = seed, 0
+        self._inner.reset(view, seed)
+
+    def act(self, obs):
+        self._calls += 1
+        if self._seed == BoomPlanner.FAIL_SEED and self._calls == 3:
+            raise RuntimeError("boom in act")
+        return self._inner.act(obs)

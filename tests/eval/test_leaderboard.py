@@ -147,6 +147,81 @@ def test_tuple_and_list_overrides_are_the_same_arguments(reference_copy):
     assert run_tiny(reference_copy, tiny_plan(env_overrides=env)).ran == 0
 
 
+def test_a_number_given_as_int_or_float_is_the_same_argument(reference_copy):
+    """budget_s=40 made the folder; budget_s=40.0 (or report times as floats) resumes it."""
+    env = {"budget_s": 40.0, "report_times": [20.0, 40]}
+    notes = []
+    summary = lb.run_leaderboard(tiny_plan(env_overrides=env), reference_copy, backend="serial", progress=False,
+                                 log=notes.append)
+    assert summary.ran == 0
+    assert any("already complete" in n for n in notes)
+
+
+def _edit_run_json(folder, edit):
+    path = folder / "run.json"
+    meta = json.loads(path.read_text())
+    edit(meta["fingerprint"])
+    path.write_text(json.dumps(meta))
+
+
+def test_a_config_field_added_since_at_its_default_keeps_the_folder(reference_copy):
+    """A folder written before a config field existed: today's default reproduces the older
+    behaviour, so the folder is the same arguments; run.json is rewritten with the field."""
+    def drop(fp):
+        for record in fp["task_configs"].values():
+            del record["sensor"]["noise_floor"]  # at its default (1.0) on every graph task
+    _edit_run_json(reference_copy, drop)
+    notes = []
+    summary = run_leaderboard_with_notes(reference_copy, notes)
+    assert summary.ran == 0 and any("older form" in n for n in notes)
+    meta = json.loads((reference_copy / "run.json").read_text())
+    assert all(r["sensor"]["noise_floor"] == 1.0 for r in meta["fingerprint"]["task_configs"].values())
+
+
+def test_a_missing_field_away_from_its_default_is_refused_naming_it(reference_copy):
+    def drop(fp):  # the tiny run overrides budget_s (40 s, default 150 s): no older code ran that
+        del fp["task_configs"][TASKS[0]]["mission"]["budget_s"]
+    _edit_run_json(reference_copy, drop)
+    with pytest.raises(ResultsMismatchError, match=r"task_configs.*\n.*Grid15Eval-v0 mission.budget_s"):
+        run_tiny(reference_copy)
+
+
+def test_a_changed_config_field_is_named(reference_copy):
+    def change(fp):
+        fp["task_configs"][TASKS[1]]["gp"]["length_scale"] = 9.0
+    _edit_run_json(reference_copy, change)
+    with pytest.raises(ResultsMismatchError, match=r"Grid20Eval-v0 gp.length_scale: there 9.0, now"):
+        run_tiny(reference_copy)
+
+
+def test_an_older_run_json_with_config_digests_is_read(reference_copy):
+    """run.json files before field-by-field configs held a digest per task, of the config of their
+    time (without the fields added since): one that matches is kept and rewritten; one that does
+    not is refused."""
+    from ipp_bench.eval.plan import DIGEST_ERA_ADDED_FIELDS, _config_digest
+    from ipp_bench.config import field_owners
+
+    added_last = DIGEST_ERA_ADDED_FIELDS[-1]
+
+    def to_digests(fp):
+        for task, record in fp["task_configs"].items():
+            for name in added_last:
+                del record[field_owners()[name]][name]
+            fp["task_configs"][task] = _config_digest(record)
+    _edit_run_json(reference_copy, to_digests)
+    notes = []
+    assert run_leaderboard_with_notes(reference_copy, notes).ran == 0
+    assert any("older form" in n for n in notes)
+    assert isinstance(json.loads((reference_copy / "run.json").read_text())["fingerprint"]["task_configs"][TASKS[0]],
+                      dict)
+
+    def wrong_digest(fp):
+        fp["task_configs"][TASKS[0]] = "0123456789abcdef"
+    _edit_run_json(reference_copy, wrong_digest)
+    with pytest.raises(ResultsMismatchError, match="config digest 0123456789abcdef"):
+        run_tiny(reference_copy)
+
+
 def test_results_without_run_json_are_refused(reference_copy):
     (reference_copy / "run.json").unlink()
     with pytest.raises(ResultsMismatchError, match="run.json"):
@@ -176,3 +251,67 @@ def test_ray_gives_the_same_results(reference_run, tmp_path):
         assert_same_results(results(out), results(reference_run[0]))
     finally:
         ray.shutdown()
+
+
+def test_a_run_that_loses_the_lock_never_touches_the_winners_folder(tmp_path, monkeypatch):
+    """Two runs start at once on a new folder: the one that created it can lose the lock to the
+    other (which found it existing); its cleanup must not delete the winner's folder."""
+    from ipp_bench.eval import results as results_module
+
+    out = tmp_path / "new"
+    plan = tiny_plan()
+    winner = lb.ResultsStore(out, plan)
+    real_lock = results_module.ResultsStore._lock
+
+    def lock_after_the_winner(self):
+        if self is not winner:
+            winner.__enter__()  # the other run locks between this one's mkdir and its lock
+        real_lock(self)
+
+    monkeypatch.setattr(results_module.ResultsStore, "_lock", lock_after_the_winner)
+    loser = lb.ResultsStore(out, plan)
+    with pytest.raises(ResultsMismatchError, match="in use by another leaderboard run"):
+        loser.__enter__()
+    assert loser._created and winner._created is False  # the loser made the folder
+    assert out.is_dir()
+    monkeypatch.setattr(results_module.ResultsStore, "_lock", real_lock)
+    winner.begin()  # the winner still writes into its folder
+    winner.__exit__(None, None, None)
+    assert (out / "run.json").exists() and (out / RESULTS_CSV).exists()
+    assert sorted(p.name for p in out.iterdir()) == ["results.csv", "run.json"]  # no lock file left
+
+
+def test_a_planner_that_raises_stops_the_run_naming_the_episode_and_keeps_the_rest(tmp_path, monkeypatch):
+    from lb_helpers import BoomPlanner
+
+    from ipp_bench import planners
+
+    monkeypatch.setitem(planners.REGISTRY, "boom", "lb_helpers:BoomPlanner")
+    plan = tiny_plan(tasks=TASKS[:1], planners=["random", "boom"])
+    monkeypatch.setattr(BoomPlanner, "FAIL_SEED", plan.seeds[1])
+    out = tmp_path / "boom"
+    with pytest.raises(lb.EpisodeFailed) as err:
+        run_tiny(out, plan, command="ipp-bench leaderboard ...")
+    message = str(err.value)
+    assert f"episode Grid15Eval-v0 boom seed {plan.seeds[1]} failed: RuntimeError: boom in act" in message
+    assert "lb_helpers.py" in message and "in act" in message  # where it was raised
+    assert "3 of 4 episodes kept" in message and message.endswith("resume: ipp-bench leaderboard ...")
+    assert "\n" not in message
+    assert len(results(out)) == 3 * len(TINY_ENV["report_times"])  # the finished episodes are on disk
+    monkeypatch.setattr(BoomPlanner, "FAIL_SEED", None)  # fixed: the rerun runs the failed one only
+    assert run_tiny(out, plan).ran == 1
+
+
+def test_a_failing_episode_in_a_worker_process_is_one_line_too(tmp_path):
+    """An episode that raises inside a pool worker (its checkpoint vanished after the run was
+    planned) ends the run with the same one line."""
+    pytest.importorskip("torch")
+    from ipp_bench.policies.checkpoint import SHIPPED_CHECKPOINT
+
+    ckpt = tmp_path / "net.pt"
+    ckpt.write_bytes(SHIPPED_CHECKPOINT.read_bytes() if hasattr(SHIPPED_CHECKPOINT, "read_bytes")
+                     else open(SHIPPED_CHECKPOINT, "rb").read())
+    plan = tiny_plan(tasks=TASKS[:1], planners=["random", f"attention:checkpoint={ckpt}"], episodes=1)
+    ckpt.unlink()
+    with pytest.raises(lb.EpisodeFailed, match=r"episode Grid15Eval-v0 attention:checkpoint=\S+ seed \d+ failed: \w+"):
+        run_tiny(tmp_path / "lb", plan, backend="process", workers=2)

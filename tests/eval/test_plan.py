@@ -76,3 +76,24 @@ def test_a_quick_that_changes_nothing_is_no_quick_run():
     assert not make_plan(tasks=["Grid15Eval-v0"], planners=["random"], episodes=2, quick=True).quick
     assert make_plan(tasks=["Grid15Eval-v0"], planners=["random"], quick=True).quick  # fewer episodes
     assert make_plan(tasks=["Grid15Eval-v0"], planners=["mcts"], episodes=2, quick=True).quick  # cheaper MCTS
+
+
+class _NoConfigPlanner:
+    """A plugin that forgot its Config."""
+
+    name = "noconfig"
+
+
+def test_a_plugin_without_config_is_left_out_of_the_default_list_with_a_note(monkeypatch):
+    from ipp_bench import planners
+    from ipp_bench.eval.plan import make_plan
+
+    monkeypatch.setitem(planners.REGISTRY, "noconfig", f"{__name__}:_NoConfigPlanner")
+    monkeypatch.setitem(planners.REGISTRY, "missing", f"{__name__}:NoSuchClass")
+    notes = []
+    plan = make_plan(tasks=["Grid15Eval-v1"], episodes=1, log=notes.append)
+    assert "noconfig" not in plan.planners and "missing" not in plan.planners and "random" in plan.planners
+    assert any("'noconfig'" in n and "no Config dataclass" in n for n in notes), notes
+    assert any("'missing'" in n and "NoSuchClass" in n for n in notes), notes
+    with pytest.raises(ValueError, match="no Config dataclass"):  # asked for by name: refused
+        make_plan(tasks=["Grid15Eval-v1"], planners=["noconfig"], episodes=1, log=notes.append)

@@ -115,3 +115,22 @@ def test_without_matplotlib_the_report_is_the_markdown_and_says_so(tmp_path, mon
     written = write_report(csv_path, tmp_path, log=notes.append)
     assert [p.name for p in written] == ["leaderboard.md"]
     assert 'pip install "ipp-bench[eval]"' in written[0].read_text() and notes
+
+
+def test_the_oracle_row_is_apart_never_bold_and_every_planner_has_its_distance_to_it():
+    """The reference that reads the truth reduces most here; it is still never the best."""
+    rows = synthetic_rows() + [dict(r, planner="oracle", uncertainty_reduction_pct=r["uncertainty_reduction_pct"] + 20,
+                                    rmse_reduction_pct=r["rmse_reduction_pct"] + 20, decision_time_mean_s=1e-6)
+                               for r in synthetic_rows() if r["planner"] == "good"]
+    agg = Aggregate(rows, planners=["oracle", "good", "bad"])  # even listed first, it is shown last
+    lines = markdown_table(agg).strip().splitlines()[2:]
+    assert lines[0].startswith("| **Toy-v0** | `good` |") and "**66.0%**" in lines[0]
+    assert "reference, knows the true ROI" in lines[2]
+    oracle = lines[3]
+    assert oracle.startswith("|  | `oracle` (reference) |") and "**" not in oracle
+    from ipp_bench.eval.report import markdown_report
+    md = markdown_report(agg, reference="greedy")
+    assert "each planner minus `oracle` (the headroom reference)" in md
+    ref = markdown_report(agg, reference="good")
+    assert "each planner minus `good`" in ref and "`oracle` (reference) | +20.0" in ref
+    assert "| `bad` | -50.0" in ref.split("minus `oracle`")[1]  # bad's distance to the oracle

@@ -25,9 +25,9 @@ def test_registry_and_specs():
 @pytest.mark.parametrize("spec, match", [
     ("nope", "unknown planner 'nope'.*valid are"),
     ("mcts:sims=3", r"no setting \['sims'\].*simulations"),
-    ("mcts:simulations=0", "mcts.simulations = 0 is invalid: expected an integer >= 1"),
+    ("mcts:simulations=0", "mcts.simulations = 0 is invalid: expected an integer in \\[1, 100000\\]"),
     ("mcts:simulations=many", "mcts.simulations = 'many' is invalid: expected a int"),
-    ("mcts:gamma=1.5", r"mcts.gamma = 1.5 is invalid: expected a number in \(0, 1\]"),
+    ("mcts:gamma=1.5", r"mcts.gamma = 1.5 is invalid: expected a finite number in \(0, 1\]"),
     ("cmaes:max_evals=3", "cmaes.max_evals"),
     ("coverage:overlap=1", "coverage.overlap"),
     ("mcts:simulations", "is not key=value"),
@@ -169,3 +169,20 @@ def test_planners_never_read_the_ground_truth(name):
     assert unseen.any()
     patched, _ = decisions(unseen)
     assert patched == base
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: __import__("ipp_bench.planners.mcts", fromlist=["x"]).MCTSConfig(gamma="0.9"),
+     "mcts.gamma = '0.9' is invalid: expected a finite number in (0, 1] (not a string or a bool)"),
+    (lambda: __import__("ipp_bench.planners.mcts", fromlist=["x"]).MCTSConfig(simulations=10**9),
+     "mcts.simulations = 1000000000 is invalid: expected an integer in [1, 100000]"),
+    (lambda: __import__("ipp_bench.planners.cmaes", fromlist=["x"]).CMAESConfig(popsize=10**6, max_evals=10**6),
+     "cmaes.popsize = 1000000 is invalid: expected an integer in [2, 10000]"),
+    (lambda: __import__("ipp_bench.planners.simple", fromlist=["x"]).CoverageConfig(overlap=float("nan")),
+     "coverage.overlap = nan is invalid: expected a finite number in [0, 1)"),
+], ids=["mcts-string", "mcts-huge-simulations", "cmaes-huge-popsize", "coverage-nan"])
+def test_planner_configs_share_the_suites_validation(make, message):
+    """Built from Python too (no spec string to coerce), a bad value is the same ValueError line."""
+    with pytest.raises(ValueError) as err:
+        make()
+    assert str(err.value) == message

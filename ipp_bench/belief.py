@@ -350,5 +350,40 @@ def normalised_innovation(belief: GPBelief, cells: np.ndarray, W: np.ndarray, z:
     return _nis(belief.mean[cells], belief.cov[np.ix_(cells, cells)], W, z, var)
 
 
-__all__ = ["GPBelief", "PersistentErrorBelief", "cell_centres", "matern32", "normalised_innovation", "prior_covariance",
-           "value_scale"]
+class WhiteNoiseBelief:
+    """The field belief under independent (white) read-out noise, with the mission's one signature.
+
+    ``update(observations, values)``: the read-outs stacked into one batch (``sensor.stack``) and
+    :meth:`GPBelief.update_local` on ``field`` (so :func:`gain_factor`, the one update). The
+    camera-error model (:class:`PersistentErrorBelief`) has the same two methods; a mission holds
+    one of the two (:func:`belief_model`) and never asks which.
+    """
+
+    def __init__(self, field: GPBelief, sensor=None):
+        del sensor  # the white noise rides on each read-out's own variance
+        self.field = field
+
+    def update(self, observations, zs) -> None:
+        from .sensor import stack
+
+        cells, W, var = stack(observations)
+        self.field.update_local(cells, W, np.concatenate(zs), var)
+
+    def normalised_innovation(self, observations, zs) -> tuple[float, int]:
+        from .sensor import stack
+
+        cells, W, var = stack(observations)
+        return normalised_innovation(self.field, cells, W, np.concatenate(zs), var)
+
+
+def belief_model(field: GPBelief, sensor) -> "WhiteNoiseBelief | PersistentErrorBelief":
+    """The belief a mission updates, for the sensor constants ``sensor`` (a ``SensorConfig``): the
+    camera-error states where the sensor has them (``camera_error_states``), else white noise.
+    Both keep ``field`` (the belief planners and metrics read) current."""
+    cls = PersistentErrorBelief if sensor.camera_error_states else WhiteNoiseBelief
+    return cls(field, sensor)
+
+
+
+__all__ = ["GPBelief", "PersistentErrorBelief", "WhiteNoiseBelief", "belief_model", "cell_centres", "matern32",
+           "normalised_innovation", "prior_covariance", "value_scale"]

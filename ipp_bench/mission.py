@@ -7,6 +7,13 @@ updates the belief, and records time-stamped metrics so that their values at any
 update (equal to sequential updates), split at the report times so that ``metrics_at`` is exact.
 Graph environments, continuous planners and the MuJoCo deployment all drive a ``Mission``.
 
+Seams: a mission keeps the bookkeeping (clock, budget, report times, path, history, metrics) and
+takes two parts. A :class:`Platform` flies a leg and returns its read-outs (:class:`StraightLegs`
+here: the graph's straight legs at the mission speed, read by the sensor model; the MuJoCo
+deployment's stop-and-go and continuous flights in ``ipp_bench.sim.mission``). A belief model
+with one ``update(observations, values)`` (:func:`ipp_bench.belief.belief_model`: white noise or
+the camera-error states) keeps ``belief``, the field belief that planners and metrics read.
+
 The mission owns the clock: :meth:`Mission.leg_durations` is the one rule of what a straight leg
 costs (length / speed here; the MuJoCo mission adds its velocity ramps), and
 :meth:`Mission.affordable` the one rule of which legs the remaining budget can pay for. Action
@@ -16,14 +23,19 @@ masks, the robot's view and every look-ahead planner ask these two, never the sp
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from typing import Protocol
 
 import numpy as np
 
 from . import metrics as M
-from .belief import GPBelief, PersistentErrorBelief
+from .belief import GPBelief, belief_model
 from .config import TIME_TOL_S, IPPConfig, cell_centre
-from .sensor import Observation, Sensor, stack
+from .sensor import Observation, Sensor
+
+#: a time-stamped read-out: (observation or None when nothing usable was seen, values z, time [s])
+Record = tuple[Observation | None, np.ndarray | None, float]
 
 #: the metrics an episode reports at each report time (:meth:`Mission.metrics_at`)
 REPORT_KEYS = ("trace_roi", "rmse_roi", "uncertainty_reduction_pct", "rmse_reduction_pct")
@@ -91,6 +103,72 @@ def cell_to_xyz(config: IPPConfig, col: float, row: float, altitude: float) -> n
     return np.array([cell_centre(col, res), cell_centre(row, res), altitude], dtype=np.float64)
 
 
+@dataclass(frozen=True)
+class LegOutcome:
+    """What a platform reports of one leg (the mission books it)."""
+
+    records: list  # time-stamped read-outs (:data:`Record`), in order
+    end_time_s: float  # [s] mission time at the end of the leg (the mission clips it to the budget)
+    duration_s: float  # [s] the leg's duration as :class:`FlownLeg` reports it
+    distance_m: float  # [m] flown
+    position: np.ndarray  # (3,) [m] where the leg ends (the mission's position from then on)
+    since_measurement_m: float  # [m] flown since the last read-out (carried into the next leg)
+
+
+class Platform(Protocol):
+    """How a mission's legs are flown and read: the graph's straight legs or a simulated drone."""
+
+    def begin(self, mission: "Mission") -> None:
+        """Called once, when the mission starts (a simulated world paints its field here)."""
+
+    def leg_durations(self, mission: "Mission", start_xyz, end_xyzs) -> np.ndarray:
+        """(K,) flight times [s] of legs from ``start_xyz`` to each of the (K, 3) ``end_xyzs``."""
+
+    def fly(self, mission: "Mission", target: np.ndarray, length_m: float) -> LegOutcome:
+        """Fly the accepted leg from ``mission.position`` to ``target`` (straight length ``length_m``)."""
+
+    def read_here(self, mission: "Mission", time_s: float) -> list:
+        """The read-outs taken where the drone is now, at mission time ``time_s``."""
+
+
+class StraightLegs:
+    """The graph tasks' platform: straight legs at the mission speed, read by the sensor model.
+
+    A leg takes length / speed; the camera is read every ``measurement_spacing`` metres travelled
+    (carried over between legs, :func:`leg_samples`) and on arrival, each read-out drawn from
+    ``mission.sensor`` with the mission's noise generator.
+    """
+
+    def begin(self, mission: "Mission") -> None:
+        pass
+
+    def leg_durations(self, mission: "Mission", start_xyz, end_xyzs) -> np.ndarray:
+        return leg_lengths(start_xyz, end_xyzs) / mission.config.mission.speed
+
+    def fly(self, mission: "Mission", target: np.ndarray, length_m: float) -> LegOutcome:
+        start = mission.position
+        delta = target - start
+        speed = mission.config.mission.speed
+        duration = mission.leg_time(target)
+        s = leg_samples(length_m, mission._since_measurement, mission.config.mission.measurement_spacing)
+        points = start + np.outer(s / length_m, delta)
+        times = mission.time_s + s / speed
+        end = mission.time_s + duration
+        return LegOutcome(self._read(mission, points, times), end, duration, length_m, target, 0.0)
+
+    def read_here(self, mission: "Mission", time_s: float) -> list:
+        return self._read(mission, [mission.position], [time_s])
+
+    @staticmethod
+    def _read(mission: "Mission", points, times) -> list:
+        records = []
+        for p, t in zip(np.asarray(points), np.asarray(times)):
+            obs, z = mission.sensor.measure(p, mission._truth_flat, mission.rng)
+            mission.measurement_log.append((float(t), *map(float, p)))
+            records.append((obs, z, float(t)))
+        return records
+
+
 class Mission:
     """World state of one episode.
 
@@ -102,10 +180,12 @@ class Mission:
         belief: initial belief (default: the GP prior of ``config.gp``).
         sensor: the camera model (default: built from ``config``; an env passes its own, so that
             it builds one).
+        platform: what flies the legs and reads the camera (default: :class:`StraightLegs`).
     """
 
     def __init__(self, config: IPPConfig, truth: np.ndarray, rng: np.random.Generator,
-                 start_xyz, belief: GPBelief | None = None, sensor: Sensor | None = None):
+                 start_xyz, belief: GPBelief | None = None, sensor: Sensor | None = None,
+                 platform: "Platform | None" = None):
         g = config.grid
         truth = np.array(truth, dtype=np.float64)
         if truth.shape != (g.rows, g.cols):
@@ -117,10 +197,12 @@ class Mission:
         self.rng = rng
         self.sensor = sensor if sensor is not None else Sensor(g, config.sensor)
         self.belief = belief if belief is not None else GPBelief.prior(g, config.gp)
-        #: the camera's error model, when the sensor has one (``SensorConfig.camera_error_states``):
-        #: updates go through it and it keeps ``belief`` (the field's marginal) current
-        self.camera_errors = (PersistentErrorBelief(self.belief, self.sensor.cfg)
-                              if self.sensor.cfg.camera_error_states else None)
+        #: what every update goes through (white noise, or the camera's error states): it keeps
+        #: ``belief`` (the field's marginal) current
+        self.belief_model = belief_model(self.belief, self.sensor.cfg)
+        #: called with (read-outs, values, time [s]) before every update (the deployment logs NIS there)
+        self.update_hooks: list[Callable[[list[Observation], list[np.ndarray], float], None]] = []
+        self.platform = platform if platform is not None else StraightLegs()
         self.position = self.check_position(start_xyz)
         self.time_s = 0.0
         self.distance_m = 0.0
@@ -132,8 +214,9 @@ class Mission:
         self._prior_trace = M.trace_roi(self.belief.variance, self.eval_roi)
         self._prior_rmse = M.rmse_roi(self.belief.mean, self._truth_flat, self.eval_roi)
         self.history: list[MetricRecord] = [self._evaluate(0.0)]
+        self.platform.begin(self)
         if config.mission.measure_at_start:
-            self._measure([self.position], [0.0])
+            self.assimilate_records(self.platform.read_here(self, 0.0))
 
     # -- clock --------------------------------------------------------------------------------
     @property
@@ -145,9 +228,9 @@ class Mission:
         return max(self.budget_s - self.time_s, 0.0)
 
     def leg_durations(self, start_xyz, end_xyzs) -> np.ndarray:
-        """(K,) flight times [s] of the straight legs from ``start_xyz`` to each of the (K, 3)
-        ``end_xyzs``: length / speed. The one rule of what a leg costs (subclasses change it)."""
-        return leg_lengths(start_xyz, end_xyzs) / self.config.mission.speed
+        """(K,) flight times [s] of the legs from ``start_xyz`` to each of the (K, 3) ``end_xyzs``,
+        as the platform flies them. The one rule of what a leg costs."""
+        return self.platform.leg_durations(self, start_xyz, end_xyzs)
 
     def leg_time(self, xyz) -> float:
         """Flight time [s] of the leg from the current position to ``xyz``."""
@@ -190,38 +273,21 @@ class Mission:
         return target, dist
 
     def fly_to(self, xyz) -> FlownLeg:
-        """Fly straight to ``xyz`` [m], measuring along the way and on arrival.
+        """Fly to ``xyz`` [m] on the platform, fusing what it read along the way and on arrival.
 
         Raises:
-            BudgetExceededError: the leg takes longer than the remaining budget.
+            BudgetExceededError: the leg's nominal time exceeds the remaining budget.
             ValueError: ``xyz`` is off the map or equals the current position.
         """
         target, dist = self.check_leg(xyz)
-        delta = target - self.position
-        speed = self.config.mission.speed
-        duration = self.leg_time(target)
-        s = leg_samples(dist, self._since_measurement, self.config.mission.measurement_spacing)
-        points = self.position + np.outer(s / dist, delta)
-        times = self.time_s + s / speed
-        self.time_s = min(self.time_s + duration, self.budget_s)
-        self.distance_m += dist
-        self.position = target
-        self._since_measurement = 0.0
-        self.path.append((self.time_s, *target))
-        n = self._measure(points, times)
-        return FlownLeg(duration, dist, n, self.time_s)
-
-    def _measure(self, points, times) -> int:
-        """Read the camera at ``points`` (times ``times``) and fuse the read-outs.
-
-        The hook a simulated world overrides (the MuJoCo mission reads its rendered camera here).
-        """
-        records = []
-        for p, t in zip(np.asarray(points), np.asarray(times)):
-            obs, z = self.sensor.measure(p, self._truth_flat, self.rng)
-            self.measurement_log.append((float(t), *map(float, p)))
-            records.append((obs, z, float(t)))
-        return self.assimilate_records(records)
+        leg = self.platform.fly(self, target, dist)
+        self.time_s = min(leg.end_time_s, self.budget_s)
+        self.distance_m += leg.distance_m
+        self.position = leg.position
+        self._since_measurement = leg.since_measurement_m
+        self.path.append((self.time_s, *self.position))
+        n = self.assimilate_records(leg.records)
+        return FlownLeg(leg.duration_s, leg.distance_m, n, self.time_s)
 
     def assimilate_records(self, records: list[tuple[Observation | None, np.ndarray | None, float]]) -> int:
         """Fuse time-stamped read-outs ``(observation or None, z, time)``, in one batch update per
@@ -243,11 +309,10 @@ class Mission:
 
         Returns the number of scalar measurements fused.
         """
-        if observations and self.camera_errors is not None:
-            self.camera_errors.update(observations, zs)
-        elif observations:
-            cells, W, var = stack(observations)
-            self.belief.update_local(cells, W, np.concatenate(zs), var)
+        if observations:
+            for hook in self.update_hooks:
+                hook(observations, zs, float(time_s))
+            self.belief_model.update(observations, zs)
         m = sum(o.m for o in observations)
         self.n_measurements += m
         self.history.append(self._evaluate(float(time_s)))

@@ -109,3 +109,46 @@ def test_fly_to_refuses_exactly_what_affordable_refuses():
     assert m.affordable(near[None])[0]
     m.fly_to(near)
     assert m.time_s == 10.0 and m.remaining_s == 0.0
+
+
+def test_one_update_signature_for_both_belief_models_and_hooks_see_every_batch():
+    """The mission never asks which belief it has: white noise or the camera-error states, one
+    ``update(observations, values)``; the field belief it exposes is updated in place."""
+    from ipp_bench.belief import GPBelief, PersistentErrorBelief, WhiteNoiseBelief, normalised_innovation
+    from ipp_bench.sensor import stack
+
+    for states, cls in ((False, WhiteNoiseBelief), (True, PersistentErrorBelief)):
+        kw = dict(persistent_var=0.004, persistent_var_binned=0.008, persistent_corr=0.5) if states else {}
+        m = make(**kw)
+        assert isinstance(m.belief_model, cls) and m.belief_model.field is m.belief
+        seen = []
+        m.update_hooks.append(lambda obs, zs, t: seen.append((len(obs), t)))
+        before = m.belief.copy()
+        m.fly_to(cell_to_xyz(m.config, 6, 2, 8.0))
+        assert seen and all(n > 0 for n, _ in seen) and seen[-1][1] == pytest.approx(m.time_s)
+        assert m.belief.variance.sum() < before.variance.sum()
+    # white noise: the update is the GP's own local update on the stacked read-outs (and NIS alike)
+    m = make()
+    obs = [m.sensor.observe(cell_to_xyz(m.config, 4, 4, 8.0)), m.sensor.observe(cell_to_xyz(m.config, 5, 4, 14.0))]
+    zs = [np.full(o.m, 0.3) for o in obs]
+    ref = m.belief.copy()
+    cells, W, var = stack(obs)
+    nis_ref = normalised_innovation(ref, cells, W, np.concatenate(zs), var)
+    assert m.belief_model.normalised_innovation(obs, zs) == nis_ref
+    ref.update_local(cells, W, np.concatenate(zs), var)
+    m.belief_model.update(obs, zs)
+    np.testing.assert_array_equal(m.belief.mean, ref.mean)
+    np.testing.assert_array_equal(m.belief.cov, ref.cov)
+    assert isinstance(ref, GPBelief)
+
+
+def test_the_graph_platform_is_straight_legs_at_the_mission_speed():
+    from ipp_bench.mission import StraightLegs
+
+    m = make()
+    assert isinstance(m.platform, StraightLegs)
+    ends = np.array([cell_to_xyz(m.config, 6, 2, 14.0), cell_to_xyz(m.config, 2, 6, 8.0)])
+    d = np.linalg.norm(ends - m.position, axis=1)
+    np.testing.assert_allclose(m.leg_durations(m.position, ends), d / m.config.mission.speed, rtol=1e-15)
+    leg = m.fly_to(ends[0])
+    assert leg.duration_s == pytest.approx(d[0] / m.config.mission.speed) and m.time_s == pytest.approx(leg.duration_s)

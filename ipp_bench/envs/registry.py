@@ -218,8 +218,10 @@ def register_all() -> None:
 def _register(spec: TaskSpec) -> None:
     if spec.id in gym.registry:
         return
-    gym.register(id=spec.id, entry_point=f"{__name__}:make_task_env",
-                 kwargs={"env_class": spec.entry_point, "config": spec.config, "task_id": spec.id},
+    kwargs = {"env_class": spec.entry_point, "config": spec.config, "task_id": spec.id}
+    if spec.sim:  # a deployment task's [sim] table, validated by ipp_bench.sim (never imported here)
+        kwargs["sim_section"] = spec.sim
+    gym.register(id=spec.id, entry_point=f"{__name__}:make_task_env", kwargs=kwargs,
                  disable_env_checker=True, order_enforce=False)
 
 
@@ -267,8 +269,26 @@ def task_config(task_id: str, overrides: dict[str, Any] | None = None) -> IPPCon
     Raises:
         ValueError: unknown task, or an override that names no field or has a bad value.
     """
-    config = task_spec(task_id).config
-    return config.replace(**overrides) if overrides else config
+    spec = task_spec(task_id)
+    config = spec.config
+    if not overrides:
+        return config
+    sim = sim_fields(spec)
+    try:
+        return config.replace(**{k: v for k, v in overrides.items() if k not in sim})
+    except ValueError as err:
+        if sim and str(err).startswith("unknown config field"):
+            raise ValueError(f"{err}; or a [sim] field of {spec.id}: {sorted(sim)}") from None
+        raise
+
+
+def sim_fields(spec: TaskSpec) -> set[str]:
+    """The field names of a task's ``[sim]`` table (its own keys and its sub-tables' keys): the
+    simulation settings ``--env`` may override; the env validates their values."""
+    names: set[str] = set()
+    for key, value in spec.sim.items():
+        names.update(value) if isinstance(value, dict) else names.add(key)
+    return names
 
 
 def parse_overrides(items: Iterable[str]) -> dict[str, Any]:

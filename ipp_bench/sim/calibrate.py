@@ -128,12 +128,11 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
     import ipp_bench.envs  # noqa: F401  (registers the tasks)
     from ipp_bench.envs.registry import task_spec
     from ipp_bench.sensor import Sensor
-    from ipp_bench.sim.env import MuJoCoIPPEnvV1
-    from ipp_bench.sim.world import WeedWorld, restrict
+    from ipp_bench.sim.world import SimConfig, WeedWorld, restrict
 
     spec = task_spec(task_id)
     cfg = spec.config
-    sim = MuJoCoIPPEnvV1.default_sim()
+    sim = SimConfig.from_dict(spec.sim) if spec.sim else SimConfig()
     if image_size is not None:
         sim = sim.with_image_size(image_size)
     world = WeedWorld(cfg.grid, cfg.sensor, cfg.mission.speed, sim)

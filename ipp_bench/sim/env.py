@@ -1,4 +1,21 @@
-"""The MuJoCo deployment task: the graph MDP, flown by a simulated quadrotor with a real camera."""
+"""The MuJoCo deployment task: the graph MDP, flown by a simulated quadrotor with a real camera.
+
+One core, two faces: :class:`MuJoCoIPPEnv` is the gymnasium environment *and* the
+``dm_control.rl.control.Task`` of the same episode. ``gym.make(task_id)`` uses its gymnasium
+face (``reset`` / ``step``); :func:`ipp_bench.sim.load` puts the same object, as the task, with
+its world's ``dm_control.mujoco.Physics`` into a ``control.Environment`` (``initialize_episode``
+/ ``before_step`` / ``get_observation`` / ``get_reward`` / ``get_termination``). Both faces drive
+one mission; neither wraps the other.
+
+Why ``control.Task`` and not ``composer.Task``: composer's value is in entities, observables
+(noise and delays on what an agent observes, at sub-step rates) and variations (model fields
+re-drawn per episode). Here one environment step is a planner decision (a whole leg, thousands
+of physics steps under the cascaded controller, the camera read along the way), the realism acts
+inside the camera pipeline and the controller's state estimate, and the per-episode texture is
+written into the compiled model directly; composer's per-physics-step hooks and observables would
+only add a second, unused stepping loop. ``control.Task`` is the protocol of the dm_control
+suite: a Physics plus a task with those five methods, which is what this is.
+"""
 
 from __future__ import annotations
 
@@ -7,15 +24,26 @@ from typing import Any
 
 import numpy as np
 
+import ipp_bench.sim.gl  # noqa: F401  (chooses MUJOCO_GL before dm_control imports mujoco)
+from dm_control.rl import control
+from dm_env import specs
+
 from ipp_bench.config import IPPConfig
 from ipp_bench.envs.graph import GraphIPPEnv
 from ipp_bench.envs.panels import render_mission
 from ipp_bench.sim.mission import MuJoCoMission
 from ipp_bench.sim.render import azimuth_to_centre, chase_camera
-from ipp_bench.sim.world import SimConfig, WeedWorld
+from ipp_bench.sim.world import SimConfig, WeedWorld, sim_field_owners
 
 
-class MuJoCoIPPEnv(GraphIPPEnv):
+def _spec_of(name: str, space) -> specs.Array:
+    low, high = np.broadcast_to(space.low, space.shape), np.broadcast_to(space.high, space.shape)
+    if np.all(np.isfinite(low)) and np.all(np.isfinite(high)):
+        return specs.BoundedArray(space.shape, space.dtype, low, high, name=name)
+    return specs.Array(space.shape, space.dtype, name=name)
+
+
+class MuJoCoIPPEnv(GraphIPPEnv, control.Task):
     """Adaptive 3D IPP on the roadmap, deployed in MuJoCo (the paper's Gazebo weed-field setting).
 
     ## Description
@@ -42,29 +70,51 @@ class MuJoCoIPPEnv(GraphIPPEnv):
     Terminated when no neighbour is affordable (or the flight used up the budget). Never truncated.
 
     ## Arguments
-    ``gym.make("ipp_bench/MuJoCoWeed15-v0", **overrides)``: any :class:`IPPConfig` field by name;
-    ``image_size`` (camera pixels, default 128) or ``sim=SimConfig(...)`` for the simulation;
+    ``gym.make("ipp_bench/MuJoCoWeed15-v0", **overrides)``: any :class:`IPPConfig` field by name,
+    any :class:`~ipp_bench.sim.world.SimConfig` leaf field by name (``image_size=480``,
+    ``wind_max=2.0``, ``mode="stop"``; the task file's ``[sim]`` table is the default), or
+    ``sim=SimConfig(...)`` in place of the task file's table;
+    ``airframe=`` a PyMJCF quadrotor in place of the shipped one (:mod:`ipp_bench.sim.scene`);
     ``render_mode="rgb_array"`` (chase view, downward camera, truth / mean / std panels).
     Needs ``pip install "ipp-bench[sim]"`` and EGL or OSMesa (``MUJOCO_GL``).
 
     ## Version History
-    - v0: initial release.
+    - v1 (``tasks/mujoco_weed15_v1.toml``: the same class, its ``[sim]`` table): the v0 task with a
+      realistic deployment (the :class:`~ipp_bench.sim.world.SimConfig` defaults):
+      a 320 x 320 camera (2.9 cm ground sampling distance at 8 m, 5.1 cm at 14 m, read out 2 x 2
+      binned above 10 m) with lens blur, motion blur where the image moves, shot and read noise, and
+      per-episode sun direction, exposure and white-balance errors; plant margins whose colours mix
+      with the soil's. The frame goes through OpenCV (HSV threshold, closing, homography onto the
+      ground with the *estimated* pose, area resampling to cells) and the measurement z is what
+      that pipeline estimates: no synthetic noise is added. The camera's error is mostly persistent,
+      so the belief carries it as states (:class:`~ipp_bench.belief.PersistentErrorBelief`: a
+      per-cell error per resolution factor, plus white noise, both larger in part-weed cells); the
+      constants of the task file are fitted to the pipeline by ``python -m ipp_bench.sim.calibrate``.
+      The drone flies through waypoints without stopping (velocity-continuous legs at up to 2 m/s,
+      slowing only where a leg turns back), in a per-episode wind with gusts, controlled from an
+      estimated state (GPS-like bias and noise, attitude noise).
+    - v0: initial release (``tasks/mujoco_weed15_v0.toml``: ideal 128 px camera, the sensor model's
+      noise added, stop at every waypoint, no wind, perfect state).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
-    #: the simulation settings of this version (v0: ideal camera + synthetic noise, stop-and-go flight)
-    default_sim = staticmethod(SimConfig.v0)
-
     def __init__(self, config: IPPConfig | dict | None = None, render_mode: str | None = None,
-                 task_id: str | None = None, sim: SimConfig | None = None, image_size: int | None = None,
-                 **overrides: Any):
-        super().__init__(config, render_mode=render_mode, task_id=task_id, **overrides)
-        sim = sim if sim is not None else self.default_sim()
-        if image_size is not None:
-            sim = sim.with_image_size(int(image_size))
-        self.sim_config = sim
-        self.world = WeedWorld(self.config.grid, self.config.sensor, self.config.mission.speed, sim)
+                 task_id: str | None = None, sim: SimConfig | None = None, sim_section: dict | None = None,
+                 airframe=None, **overrides: Any):
+        sim_names = sim_field_owners()
+        sim_overrides = {k: overrides.pop(k) for k in list(overrides) if k in sim_names}
+        try:
+            super().__init__(config, render_mode=render_mode, task_id=task_id, **overrides)
+        except ValueError as err:
+            if str(err).startswith("unknown config field"):
+                raise ValueError(f"{err}; or a sim field: {sorted(sim_names)}") from None
+            raise
+        if sim is None:
+            sim = SimConfig.from_dict(sim_section) if sim_section is not None else SimConfig()
+        self.sim_config = sim.replace(**sim_overrides) if sim_overrides else sim
+        self.world = WeedWorld(self.config.grid, self.config.sensor, self.config.mission.speed, self.sim_config,
+                               airframe=airframe)
         self._chase = chase_camera(self.world.scene)
 
     def _make_mission(self, truth: np.ndarray, rng: np.random.Generator, start_xyz: np.ndarray) -> MuJoCoMission:
@@ -92,40 +142,71 @@ class MuJoCoIPPEnv(GraphIPPEnv):
         super().close()
 
 
-class MuJoCoIPPEnvV1(MuJoCoIPPEnv):
-    """``ipp_bench/MuJoCoWeed15-v1``: the camera is the sensor, the drone flies like one.
+    # -- the dm_control face (control.Task) -----------------------------------------------------------
+    #
+    # Observations: the gymnasium observation's arrays plus ``estimated_position`` (3,) [m], what the
+    # drone's state estimator says (never the true pose). Action: a neighbour index. dm_env has no
+    # action masks: an unaffordable neighbour ends the episode (LAST, reward 0, discount 0) instead
+    # of raising. Rewards as the gymnasium face; discount 1 until the end (0 at the end).
 
-    ## Description
-    The v0 task with a realistic deployment (:class:`~ipp_bench.sim.world.SimConfig` defaults):
-    a 320 x 320 camera (2.9 cm ground sampling distance at 8 m, 5.1 cm at 14 m, read out 2 x 2
-    binned above 10 m) with lens blur, motion blur where the image moves, shot and read noise, and
-    per-episode sun direction, exposure and white-balance errors; plant margins whose colours mix
-    with the soil's. The frame goes through OpenCV (HSV threshold, closing, homography onto the
-    ground with the *estimated* pose, area resampling to cells) and the measurement z is what
-    that pipeline estimates: no synthetic noise is added. The camera's error is mostly persistent,
-    so the belief carries it as states (:class:`~ipp_bench.belief.PersistentErrorBelief`: a
-    per-cell error per resolution factor, plus white noise, both larger in part-weed cells); the
-    constants of the task file are fitted to the pipeline by ``python -m ipp_bench.sim.calibrate``.
-    The drone flies through waypoints without stopping (velocity-continuous legs at up to 2 m/s,
-    slowing only where a leg turns back), in a per-episode wind with gusts, controlled from an
-    estimated state (GPS-like bias and noise, attitude noise).
+    def seed_episodes(self, seed: int | None) -> None:
+        """Seed of the episode seeds the dm_control face plays (:func:`ipp_bench.sim.load`'s ``seed``)."""
+        self._dm_rng = np.random.default_rng(seed)
 
-    ## Action Space
-    As v0; ``action_masks()`` asks the mission's affordability oracle (exact leg durations of
-    the continuous flight from the current velocity).
+    def initialize_episode(self, physics) -> None:
+        self._check_physics(physics)
+        if getattr(self, "_dm_rng", None) is None:
+            self.seed_episodes(None)
+        obs, _ = self.reset(seed=int(self._dm_rng.integers(0, 2**31 - 1)))
+        self._dm_last = (obs, 0.0, False)
 
-    ## Observation Space, Rewards, Episode End
-    As v0. Mission time is the sum of the flown legs' durations.
+    def before_step(self, action, physics) -> None:
+        self._check_physics(physics)
+        arr = np.asarray(action)
+        if arr.size != 1 or not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"action {action!r} is invalid: expected one neighbour index in [0, {self.roadmap.k})")
+        a = int(arr.reshape(-1)[0])
+        if not 0 <= a < self.roadmap.k:
+            raise ValueError(f"action {a} is invalid: expected a neighbour index in [0, {self.roadmap.k})")
+        mask = self.action_masks()
+        if not mask[a]:  # the drone asked for a leg the budget cannot pay for: the episode ends
+            self._dm_last = (self._observation(mask), 0.0, True)
+            return
+        obs, reward, terminated, _, _ = self.step(a)
+        self._dm_last = (obs, float(reward), bool(terminated))
 
-    ## Arguments
-    As v0; ``sim=SimConfig(...)`` overrides the deployment settings (e.g.
-    ``SimConfig(measurement="truth")`` replaces the camera's values by the ground truth).
+    def get_observation(self, physics) -> dict[str, np.ndarray]:
+        obs = self._dm_last[0]
+        spec = self._dm_observation_spec()
+        out = {k: np.asarray(v, dtype=spec[k].dtype) for k, v in obs.items()}
+        out["estimated_position"] = self.world.flight.estimated_position().astype(np.float64)
+        return out
 
-    ## Version History
-    - v1: camera as the sensor (no synthetic noise; the camera's error model fitted to it, its
-      persistent part as belief states), realistic image formation, OpenCV pipeline, continuous
-      flight, wind, state estimation.
-    - v0: initial release.
-    """
+    def get_reward(self, physics) -> float:
+        return self._dm_last[1]
 
-    default_sim = staticmethod(SimConfig)
+    def get_termination(self, physics):
+        return 0.0 if self._dm_last[2] else None
+
+    def action_spec(self, physics) -> specs.DiscreteArray:
+        return specs.DiscreteArray(int(self.roadmap.k), dtype=np.int64, name="neighbour")
+
+    def observation_spec(self, physics) -> dict[str, specs.Array]:
+        return dict(self._dm_observation_spec())
+
+    def _dm_observation_spec(self) -> dict[str, specs.Array]:
+        spec = getattr(self, "_dm_obs_spec", None)
+        if spec is None:
+            spec = {name: _spec_of(name, sub) for name, sub in self.observation_space.spaces.items()}
+            spec["estimated_position"] = specs.Array((3,), np.float64, name="estimated_position")
+            self._dm_obs_spec = spec
+        return spec
+
+    def _check_physics(self, physics) -> None:
+        if physics is not self.world.scene.physics:
+            raise ValueError("this task runs on its own world's physics (env.world.scene.physics); "
+                             "build the environment with ipp_bench.sim.load()")
+
+
+#: former name of the v1 entry point: both versions are :class:`MuJoCoIPPEnv`, their task files differ
+MuJoCoIPPEnvV1 = MuJoCoIPPEnv

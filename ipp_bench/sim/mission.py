@@ -1,6 +1,9 @@
-"""A :class:`~ipp_bench.mission.Mission` flown by the simulated quadrotor and read by its camera.
+"""The MuJoCo platforms of a :class:`~ipp_bench.mission.Mission`: the simulated quadrotor and its camera.
 
-Same world state, clock and metrics as the core mission, with these differences:
+The mission keeps its bookkeeping (clock, budget, metrics); what changes is the platform it
+takes (:class:`ContinuousFlight`, v1, or :class:`StopAndGoFlight`, v0, both a
+:class:`MuJoCoPlatform`). :class:`MuJoCoMission` is the core mission built with one of them, plus
+read-only access to the platform's world and logs. Against the graph's straight legs:
 
 * ``fly_to`` runs the MuJoCo physics under the cascaded controller, from the estimated state, in
   the episode's wind; distance is the path actually flown.
@@ -15,10 +18,10 @@ Same world state, clock and metrics as the core mission, with these differences:
 * The camera is read every ``measurement_spacing`` metres actually travelled (carried over between
   legs) and on arrival; a read-out is the rendered frame through image formation, segmentation
   and projection with the estimated pose (:meth:`WeedWorld.read_camera`), never the ground truth.
-  The Kalman update is the core's (:meth:`Mission.assimilate`; in v1 through the camera's error
-  model, :class:`~ipp_bench.belief.PersistentErrorBelief`); every update's normalised innovation
-  squared is logged in ``nis_log`` (the belief's consistency check), with the S of the model the
-  update uses.
+  The Kalman update is the core's (:meth:`Mission.assimilate`, through the mission's belief model;
+  in v1 the camera's error states, :class:`~ipp_bench.belief.PersistentErrorBelief`); every
+  update's normalised innovation squared is logged in ``nis_log`` (the belief's consistency
+  check) by an update hook, with the S of the model the update uses.
 """
 
 from __future__ import annotations
@@ -28,34 +31,30 @@ from typing import Callable
 
 import numpy as np
 
-from ipp_bench.belief import GPBelief, normalised_innovation
+from ipp_bench.belief import GPBelief
 from ipp_bench.config import IPPConfig
-from ipp_bench.mission import FlownLeg, Mission, fits_budget
-from ipp_bench.sensor import Observation, Sensor, stack
+from ipp_bench.mission import LegOutcome, Mission, Record
+from ipp_bench.sensor import Observation, Sensor
 from ipp_bench.sim.world import WeedWorld
 
 _TOL = 1e-9
 
 
-class MuJoCoMission(Mission):
-    """Mission whose flights and measurements come from :class:`WeedWorld`.
+class MuJoCoPlatform:
+    """What the MuJoCo platforms share: the world, the episode's start, the camera read-outs, the logs.
 
     Args:
-        config, truth, rng, start_xyz, belief: as :class:`~ipp_bench.mission.Mission`
-            (``rng`` draws the v0 sensor noise and, in v1, the episode's seed).
-        world: the simulated world; its ground is repainted from ``truth``.
+        world: the simulated world; its ground is repainted from the mission's truth at ``begin``.
         texture_seed: seed of the episode's texture (v0) or of everything drawn per episode (v1:
             texture, sun, exposure, white balance, pixel noise, wind, estimator errors).
     """
 
-    def __init__(self, config: IPPConfig, truth: np.ndarray, rng: np.random.Generator, start_xyz,
-                 world: WeedWorld, texture_seed: int, belief: GPBelief | None = None,
-                 sensor: Sensor | None = None):
+    def __init__(self, world: WeedWorld, texture_seed: int) -> None:
         self.world = world
         self.flight = world.flight
-        self.continuous = world.cfg.flight.mode == "continuous"
+        self.texture_seed = int(texture_seed)
         #: called with the mission after every physics step (the demo grabs video frames here)
-        self.step_hooks: list[Callable[["MuJoCoMission"], None]] = []
+        self.step_hooks: list[Callable[[Mission], None]] = []
         #: (time [s], NIS, degrees of freedom) of every Kalman update
         self.nis_log: list[tuple[float, float, int]] = []
         #: (read-outs, values, time [s]) of every Kalman update, as fused (calibration replays them)
@@ -64,15 +63,16 @@ class MuJoCoMission(Mission):
         self.cell_log: list[tuple[np.ndarray, np.ndarray, int]] = []
         #: (time [s], true xyz, estimated xyz) of every camera read-out
         self.camera_log: list[tuple[float, np.ndarray, np.ndarray]] = []
-        if self.continuous:
-            world.begin_episode(truth, texture_seed)
-        else:
-            world.load_field(truth, texture_seed)
-        world.flight.reset(np.asarray(start_xyz, dtype=np.float64))
-        super().__init__(config, truth, rng, start_xyz, belief, sensor)
+        self._mission: Mission | None = None
 
-    # -- clock: the affordability oracle ----------------------------------------------------------
-    def leg_durations(self, start_xyz, end_xyzs) -> np.ndarray:
+    # -- the platform protocol ------------------------------------------------------------------
+    def begin(self, mission: Mission) -> None:
+        self._paint(mission.truth)
+        self.flight.reset(np.asarray(mission.position, dtype=np.float64))
+        self._mission = mission
+        mission.update_hooks.append(self._log_update)
+
+    def leg_durations(self, mission: Mission, start_xyz, end_xyzs) -> np.ndarray:
         """Flight time [s] of legs from ``start_xyz`` to each of ``end_xyzs`` (K, 3), as flown here.
 
         From the current position: exact (v1: from the reference's velocity; v0: ramps included).
@@ -80,47 +80,23 @@ class MuJoCoMission(Mission):
         """
         ends = np.asarray(end_xyzs, dtype=np.float64).reshape(-1, 3)
         start = np.asarray(start_xyz, dtype=np.float64).reshape(3)
-        here = np.linalg.norm(start - self.position) <= 1e-6
+        here = np.linalg.norm(start - mission.position) <= 1e-6
         return self.flight.leg_durations(ends, None if here else start)
 
-    def leg_time(self, xyz) -> float:
-        """Flight time [s] from here to ``xyz``."""
-        return float(self.leg_durations(self.position, np.asarray(xyz, dtype=np.float64).reshape(1, 3))[0])
+    def read_here(self, mission: Mission, time_s: float) -> list[Record]:
+        del mission  # the drone is where it is
+        return [self._read(float(time_s))]
 
-    def leg_times(self, distances: np.ndarray) -> np.ndarray:
-        """v0 only: leg times for leg lengths ``distances`` [m] (stop mode, from rest)."""
-        d = np.asarray(distances, dtype=np.float64)
-        ramp = self.flight.ramp_s
-        v = np.minimum(self.config.mission.speed, d / ramp)
-        return np.where(d > 0, d / np.where(v > 0, v, 1.0) + ramp, 0.0)
+    # -- shared parts ---------------------------------------------------------------------------
+    def _paint(self, truth: np.ndarray) -> None:
+        raise NotImplementedError
 
-    def affordable(self, end_xyzs) -> np.ndarray:
-        """(K,) bool: legs from here that end within the remaining budget."""
-        return fits_budget(self.leg_durations(self.position, end_xyzs), self.remaining_s)
-
-    def can_reach(self, xyz) -> bool:
-        return bool(self.affordable(np.asarray(xyz, dtype=np.float64).reshape(1, 3))[0])
-
-    # -- flight -----------------------------------------------------------------------------------
-    def fly_to(self, xyz) -> FlownLeg:
-        """Flies to ``xyz`` [m] in MuJoCo, reading the camera along the way and on arrival.
-
-        A leg is refused, as in the core, when its nominal time (length / speed) exceeds the remaining
-        budget. Graph tasks only offer legs that the oracle (:meth:`leg_durations`) says fit; a
-        continuous planner that plans with nominal times may ask for one that does not: it is flown
-        until the budget runs out and ends where the drone is then (v0 did the same).
-
-        Raises:
-            BudgetExceededError: the leg's nominal time exceeds the remaining budget.
-            ValueError: ``xyz`` is off the map or equals the current position.
-        """
-        target, _ = self.check_leg(xyz)
-        spacing = self.config.mission.measurement_spacing
-        flight, data, adr = self.flight, self.world.scene.data, self.world.scene.qpos_adr
-        t0 = self.time_s
-        records: list[tuple[Observation | None, np.ndarray | None, float]] = []
-        state = {"since": self._since_measurement, "flown": 0.0, "last": tuple(data.qpos[adr: adr + 3])}
-        hooks = self.step_hooks
+    def _odometer(self, mission: Mission, records: list[Record]):
+        """The per-physics-step callback of a leg: distance flown, a read-out every spacing metres."""
+        spacing = mission.config.mission.measurement_spacing
+        data, adr = self.world.scene.data, self.world.scene.qpos_adr
+        state = {"since": mission._since_measurement, "flown": 0.0, "last": tuple(data.qpos[adr: adr + 3])}
+        hooks, budget = self.step_hooks, mission.budget_s
 
         def on_step(_flight) -> None:
             here = tuple(data.qpos[adr: adr + 3])
@@ -129,62 +105,115 @@ class MuJoCoMission(Mission):
             state["flown"] += step
             state["since"] += step
             if state["since"] >= spacing - _TOL:
-                records.append(self._read(min(data.time, self.budget_s)))
+                records.append(self._read(min(data.time, budget)))
                 state["since"] = 0.0
             for hook in hooks:
-                hook(self)
+                hook(mission)
 
-        if self.continuous:
-            leg = flight.follow(target, on_step=on_step, time_limit_s=self.budget_s)
-            end = flight.ref_time
-            if end >= t0 + leg.duration - _TOL:  # the whole leg was flown
-                records.append(self._read(min(end, self.budget_s)))
-                state["since"] = 0.0
-                self.position = target
-            else:  # out of budget on the way: the leg ends where the reference was
-                self.position = self._inside(flight.ref_pos.copy())
-        else:
-            reference_s = self.leg_time(target)
-            flight.fly_to(target, on_step=on_step, time_limit_s=self.budget_s)
-            end = flight.time_s
-            if end - t0 >= reference_s - _TOL:  # settled, or out of budget with the reference at the target
-                records.append(self._read(end))
-                state["since"] = 0.0
-            self.position = self._inside(flight.position)
-        self.time_s = min(end, self.budget_s)
-        self.distance_m += state["flown"]
-        self._since_measurement = state["since"]
-        self.path.append((self.time_s, *self.position))
-        n = self.assimilate_records(records)
-        return FlownLeg(self.time_s - t0, state["flown"], n, self.time_s)
+        return on_step, state
 
-    def _inside(self, p: np.ndarray) -> np.ndarray:
-        width, height = self.config.grid.size_m
+    def _inside(self, mission: Mission, p: np.ndarray) -> np.ndarray:
+        width, height = mission.config.grid.size_m
         return np.array([min(max(p[0], 0.0), width), min(max(p[1], 0.0), height), max(p[2], 1e-3)])
 
-    # -- sensing ----------------------------------------------------------------------------------
-    def _read(self, time_s: float) -> tuple[Observation | None, np.ndarray | None, float]:
-        obs, z = self.world.read_camera(self.sensor, self.rng, self.truth)
-        self.measurement_log.append((float(time_s), *map(float, self.flight.position)))
+    def _read(self, time_s: float) -> Record:
+        mission = self._mission
+        obs, z = self.world.read_camera(mission.sensor, mission.rng, mission.truth)
+        mission.measurement_log.append((float(time_s), *map(float, self.flight.position)))
         reading = self.world.last_reading
         self.camera_log.append((float(time_s), reading.body_xyz, reading.estimated_xyz))
         if obs is not None:
             self.cell_log.append((obs.cells, reading.fraction[obs.cells], obs.factor))
         return obs, z, float(time_s)
 
-    def _measure(self, points, times) -> int:
-        """The core calls this once, for the read-out at the start: take it with the camera."""
-        del points  # the drone is where it is
-        return self.assimilate_records([self._read(float(t)) for t in times])
+    def _log_update(self, observations: list[Observation], zs: list[np.ndarray], time_s: float) -> None:
+        """Update hook: the batch as fused, and its NIS under the model the update uses."""
+        self.update_log.append((list(observations), list(zs), float(time_s)))
+        self.nis_log.append((float(time_s), *self._mission.belief_model.normalised_innovation(observations, zs)))
 
-    def assimilate(self, observations: list[Observation], zs: list[np.ndarray], time_s: float) -> int:
-        """The core's Kalman update, with the normalised innovation squared of the batch logged first."""
-        if observations:
-            self.update_log.append((list(observations), list(zs), float(time_s)))
-        if observations and self.camera_errors is not None:
-            self.nis_log.append((float(time_s), *self.camera_errors.normalised_innovation(observations, zs)))
-        elif observations:
-            cells, W, var = stack(observations)
-            z = np.concatenate(zs)
-            self.nis_log.append((float(time_s), *normalised_innovation(self.belief, cells, W, z, var)))
-        return super().assimilate(observations, zs, time_s)
+
+class ContinuousFlight(MuJoCoPlatform):
+    """v1: velocity-continuous legs through the waypoints; a leg takes exactly its reference duration.
+
+    Mission time is that reference time and the mission's position the reference's end (the
+    waypoint the planner chose); a leg the budget cuts short ends where the reference was then.
+    """
+
+    def _paint(self, truth: np.ndarray) -> None:
+        self.world.begin_episode(truth, self.texture_seed)
+
+    def fly(self, mission: Mission, target: np.ndarray, length_m: float) -> LegOutcome:
+        del length_m
+        records: list[Record] = []
+        t0 = mission.time_s
+        on_step, state = self._odometer(mission, records)
+        leg = self.flight.follow(target, on_step=on_step, time_limit_s=mission.budget_s)
+        end = self.flight.ref_time
+        if end >= t0 + leg.duration - _TOL:  # the whole leg was flown
+            records.append(self._read(min(end, mission.budget_s)))
+            state["since"] = 0.0
+            position = target
+        else:  # out of budget on the way: the leg ends where the reference was
+            position = self._inside(mission, self.flight.ref_pos.copy())
+        end_time = min(end, mission.budget_s)
+        return LegOutcome(records, end_time, end_time - t0, state["flown"], position, state["since"])
+
+
+class StopAndGoFlight(MuJoCoPlatform):
+    """v0: ramp up, cruise, ramp down and settle at every waypoint; mission time is simulated time."""
+
+    def _paint(self, truth: np.ndarray) -> None:
+        self.world.load_field(truth, self.texture_seed)
+
+    def fly(self, mission: Mission, target: np.ndarray, length_m: float) -> LegOutcome:
+        del length_m
+        records: list[Record] = []
+        t0 = mission.time_s
+        reference_s = mission.leg_time(target)
+        on_step, state = self._odometer(mission, records)
+        self.flight.fly_to(target, on_step=on_step, time_limit_s=mission.budget_s)
+        end = self.flight.time_s
+        if end - t0 >= reference_s - _TOL:  # settled, or out of budget with the reference at the target
+            records.append(self._read(end))
+            state["since"] = 0.0
+        end_time = min(end, mission.budget_s)
+        return LegOutcome(records, end_time, end_time - t0, state["flown"], self._inside(mission, self.flight.position),
+                          state["since"])
+
+
+def mujoco_platform(world: WeedWorld, texture_seed: int) -> MuJoCoPlatform:
+    """The platform of the world's flight mode (``SimConfig.flight.mode``)."""
+    cls = ContinuousFlight if world.cfg.flight.mode == "continuous" else StopAndGoFlight
+    return cls(world, texture_seed)
+
+
+class MuJoCoMission(Mission):
+    """The core mission on a MuJoCo platform (:func:`mujoco_platform`), with its world and logs at hand.
+
+    Args:
+        config, truth, rng, start_xyz, belief, sensor: as :class:`~ipp_bench.mission.Mission`
+            (``rng`` draws the v0 sensor noise and, in v1, the episode's seed).
+        world: the simulated world; its ground is repainted from ``truth``.
+        texture_seed: see :class:`MuJoCoPlatform`.
+
+    Nothing of the core is overridden: the platform flies and reads, the core books.
+    """
+
+    def __init__(self, config: IPPConfig, truth: np.ndarray, rng: np.random.Generator, start_xyz,
+                 world: WeedWorld, texture_seed: int, belief: GPBelief | None = None,
+                 sensor: Sensor | None = None):
+        super().__init__(config, truth, rng, start_xyz, belief, sensor, platform=mujoco_platform(world, texture_seed))
+
+    # read-only access to the platform's parts and logs
+    world = property(lambda self: self.platform.world)
+    flight = property(lambda self: self.platform.flight)
+    continuous = property(lambda self: isinstance(self.platform, ContinuousFlight))
+    step_hooks = property(lambda self: self.platform.step_hooks)
+    nis_log = property(lambda self: self.platform.nis_log)
+    update_log = property(lambda self: self.platform.update_log)
+    cell_log = property(lambda self: self.platform.cell_log)
+    camera_log = property(lambda self: self.platform.camera_log)
+
+    def can_reach(self, xyz) -> bool:
+        """Whether the leg from here to ``xyz`` fits the remaining budget (the mission's oracle)."""
+        return bool(self.affordable(np.asarray(xyz, dtype=np.float64).reshape(1, 3))[0])

@@ -1,4 +1,4 @@
-"""The quadrotor: physical parameters, its MjSpec body, and the rotor mixer.
+"""The quadrotor: physical parameters, its PyMJCF airframe, and the rotor mixer.
 
 An X-configuration quadrotor of 1.5 kg (the class of the AscTec/Firefly-type
 research platforms used in the lineage's Gazebo experiments). Four site
@@ -123,69 +123,126 @@ class RotorSpeeds:
         return applied
 
 
-def add_quadrotor(spec: mujoco.MjSpec, params: QuadrotorParams, pos=(0.0, 0.0, 1.0),
-                  name: str = "quad") -> mujoco.MjsBody:
-    """Adds the quadrotor (free body, rotor sites and actuators, downward camera) to ``spec``.
+#: what an airframe MJCF provides (its model is attached to the scene under the prefix ``quad/``)
+AIRFRAME_NAMES = ("one body with a free joint (its centre of mass at its origin)",
+                  "rotor0..rotor3: sites and actuators (front-left, front-right, rear-right, rear-left)",
+                  "down: the downward camera")
 
-    Names: body ``quad``, camera ``quad/down``, sites and actuators ``quad/rotor{i}``.
+
+def airframe_mjcf(params: QuadrotorParams = QuadrotorParams()) -> "mjcf.RootElement":
+    """The shipped airframe as a PyMJCF model (what ``assets/quadrotor.xml`` holds).
+
+    The model is what :class:`~ipp_bench.sim.scene.WeedScene` attaches (``airframe=``): one free
+    body (``<freejoint/>``; static sub-bodies are fused into it) carrying the mass and inertia with
+    its centre of mass at the body origin, four sites
+    ``rotor0..rotor3`` with site actuators pushing along body z (gear ``0 0 1 0 0 +-k_m``,
+    ``ctrlrange`` 0..max thrust; ``dyntype="filterexact"`` for the thrust lag, none for the
+    ``"speed"`` rotor model) and a camera ``down``. Any MJCF with those names can replace it;
+    :func:`airframe_params` reads the controller's parameters back from the compiled model.
     """
-    body = spec.worldbody.add_body(name=name, pos=list(pos))
-    body.add_freejoint(name=f"{name}/free")
-    body.explicitinertial = True
-    body.mass = params.mass
-    body.inertia = list(params.inertia)
-    body.ipos = [0.0, 0.0, 0.0]
+    from dm_control import mjcf
 
+    root = mjcf.RootElement(model="quad")
+    body = root.worldbody.add("body", name="airframe")
+    body.add("freejoint", name="free")
+    body.add("inertial", pos=[0.0, 0.0, 0.0], mass=params.mass, diaginertia=list(params.inertia))
     visual = dict(contype=0, conaffinity=0, density=0.0, group=1)
-    body.add_geom(name=f"{name}/hull", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.09, 0.07, 0.035],
-                  rgba=[0.15, 0.15, 0.18, 1.0], contype=1, conaffinity=1, density=0.0)
-    body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.04, 0.04, 0.012], pos=[0.0, 0.0, 0.045],
-                  rgba=[0.9, 0.45, 0.1, 1.0], **visual)
+    body.add("geom", name="hull", type="box", size=[0.09, 0.07, 0.035], rgba=[0.15, 0.15, 0.18, 1.0],
+             contype=1, conaffinity=1, density=0.0)
+    body.add("geom", type="box", size=[0.04, 0.04, 0.012], pos=[0.0, 0.0, 0.045], rgba=[0.9, 0.45, 0.1, 1.0],
+             **visual)
     colours = ([0.85, 0.1, 0.1, 1.0], [0.85, 0.1, 0.1, 1.0], [0.9, 0.9, 0.9, 1.0], [0.9, 0.9, 0.9, 1.0])
     for i, ((x, y), rgba) in enumerate(zip(params.rotor_positions, colours)):
-        body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.012, 0.0, 0.0],
-                      fromto=[0.0, 0.0, 0.0, x, y, 0.0], rgba=[0.2, 0.2, 0.22, 1.0], **visual)
-        body.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.11, 0.004, 0.0], pos=[x, y, 0.03],
-                      rgba=[rgba[0], rgba[1], rgba[2], 0.55], **visual)
-        body.add_site(name=f"{name}/rotor{i}", pos=[x, y, 0.03], size=[0.01, 0.0, 0.0])
-        act = spec.add_actuator(name=f"{name}/rotor{i}", target=f"{name}/rotor{i}",
-                                trntype=mujoco.mjtTrn.mjTRN_SITE)
-        act.gear = [0.0, 0.0, 1.0, 0.0, 0.0, float(params.spin[i] * params.yaw_moment_coeff)]
-        act.ctrllimited = True
-        act.ctrlrange = [0.0, params.max_thrust]
-        if params.rotor_model == "thrust":
-            act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
-            act.dynprm[0] = params.motor_time_constant
-        else:  # "speed": the thrust k_f omega^2 comes from RotorSpeeds
-            act.dyntype = mujoco.mjtDyn.mjDYN_NONE
-        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
-        act.gainprm[0] = 1.0
-        act.biastype = mujoco.mjtBias.mjBIAS_NONE
-    body.add_camera(name=f"{name}/down", pos=[0.0, 0.0, params.camera_offset_z], fovy=params.camera_fovy_deg)
-    return body
+        body.add("geom", type="capsule", size=[0.012], fromto=[0.0, 0.0, 0.0, x, y, 0.0],
+                 rgba=[0.2, 0.2, 0.22, 1.0], **visual)
+        body.add("geom", type="cylinder", size=[0.11, 0.004], pos=[x, y, 0.03],
+                 rgba=[rgba[0], rgba[1], rgba[2], 0.55], **visual)
+        site = body.add("site", name=f"rotor{i}", pos=[x, y, 0.03], size=[0.01])
+        dyn = (dict(dyntype="filterexact", dynprm=[params.motor_time_constant]) if params.rotor_model == "thrust"
+               else dict(dyntype="none"))
+        root.actuator.add("general", name=f"rotor{i}", site=site, ctrllimited=True,
+                          ctrlrange=[0.0, params.max_thrust],
+                          gear=[0.0, 0.0, 1.0, 0.0, 0.0, float(params.spin[i] * params.yaw_moment_coeff)],
+                          gaintype="fixed", gainprm=[1.0], biastype="none", **dyn)
+    body.add("camera", name="down", pos=[0.0, 0.0, params.camera_offset_z], fovy=params.camera_fovy_deg)
+    return root
 
 
-def quadrotor_spec(params: QuadrotorParams = QuadrotorParams(), timestep: float = 0.005,
-                   air_density: float = 1.225) -> mujoco.MjSpec:
-    """The airframe alone, hovering 1 m above the origin (what ``assets/quadrotor.xml`` holds)."""
-    spec = mujoco.MjSpec()
-    spec.modelname = "ipp_bench_quadrotor"
-    spec.option.timestep = timestep
-    spec.option.density = air_density
-    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-    add_quadrotor(spec, params)
-    return spec
+def airframe_params(model, prefix: str = "quad/", thrust_coeff: float = QuadrotorParams.thrust_coeff
+                    ) -> QuadrotorParams:
+    """The controller's :class:`QuadrotorParams`, read from a compiled model holding an airframe.
+
+    Args:
+        model: ``mujoco.MjModel`` (e.g. ``physics.model.ptr``) of a scene with an attached airframe.
+        prefix: the airframe's name prefix.
+        thrust_coeff: k_f of the ``"speed"`` rotor model (not an MJCF quantity).
+
+    Raises:
+        ValueError: a name of :data:`AIRFRAME_NAMES` is missing, or the airframe is not an X
+            quadrotor with its centre of mass at its frame (naming what is wrong).
+    """
+    def need(kind, name):
+        i = mujoco.mj_name2id(model, kind, prefix + name)
+        if i < 0:
+            raise ValueError(f"airframe: no {kind.name[6:].lower()} named {name!r} (an airframe provides "
+                             f"{'; '.join(AIRFRAME_NAMES)})")
+        return i
+
+    body = int(model.jnt_bodyid[free_joint(model, prefix)])
+    mass = float(model.body_subtreemass[body])
+    if mass != float(model.body_mass[body]):
+        raise ValueError("airframe: bodies below the free body must be static (no joints), so that they fuse into it")
+    if np.abs(model.body_ipos[body]).max() > 1e-9:
+        raise ValueError("airframe: the centre of mass must be at the airframe's origin (body pos and inertial pos 0)")
+    sites = [need(mujoco.mjtObj.mjOBJ_SITE, f"rotor{i}") for i in range(4)]
+    acts = [need(mujoco.mjtObj.mjOBJ_ACTUATOR, f"rotor{i}") for i in range(4)]
+    xy = np.array([model.site_pos[s][:2] for s in sites])
+    arm = float(np.hypot(*xy[0]))
+    expected = QuadrotorParams(arm_length=max(arm, 1e-9)).rotor_positions
+    if not np.allclose(xy, expected, atol=1e-6):
+        raise ValueError(f"airframe: rotor sites at {xy.round(4).tolist()} are not an X of arm {arm:.4f} m "
+                         "(front-left, front-right, rear-right, rear-left)")
+    gear = np.array([model.actuator_gear[a] for a in acts])
+    k_m = float(abs(gear[0, 5]))
+    if not (np.allclose(gear[:, :3], [0.0, 0.0, 1.0]) and np.allclose(gear[:, 5], QuadrotorParams().spin * k_m)):
+        raise ValueError(f"airframe: rotor actuators need gear 0 0 1 0 0 +-k_m with spins {QuadrotorParams().spin}, "
+                         f"got {gear.round(4).tolist()}")
+    filt = [int(model.actuator_dyntype[a]) == int(mujoco.mjtDyn.mjDYN_FILTEREXACT) for a in acts]
+    if len(set(filt)) != 1:
+        raise ValueError("airframe: the four rotor actuators must share one dyntype")
+    cam = need(mujoco.mjtObj.mjOBJ_CAMERA, "down")
+    tau = float(model.actuator_dynprm[acts[0]][0]) if filt[0] else QuadrotorParams.motor_time_constant
+    return QuadrotorParams(
+        mass=mass, inertia=tuple(float(v) for v in model.body_inertia[body]), arm_length=arm,
+        max_thrust=float(model.actuator_ctrlrange[acts[0]][1]), yaw_moment_coeff=k_m,
+        motor_time_constant=tau,
+        rotor_model="thrust" if filt[0] else "speed", thrust_coeff=thrust_coeff,
+        camera_fovy_deg=float(model.cam_fovy[cam]), camera_offset_z=float(model.cam_pos[cam][2]))
+
+
+def free_joint(model, prefix: str = "quad/") -> int:
+    """Id of the airframe's free joint (the one free joint of a body named ``prefix...``)."""
+    free = [j for j in range(model.njnt) if int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_FREE)
+            and (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.jnt_bodyid[j])) or "").startswith(prefix)]
+    if len(free) != 1:
+        raise ValueError(f"airframe: needs exactly one body with a free joint, found {len(free)} ("
+                         f"an airframe provides {'; '.join(AIRFRAME_NAMES)})")
+    return free[0]
+
+
+def airframe_xml(params: QuadrotorParams = QuadrotorParams()) -> str:
+    """The airframe alone as an MJCF document (``assets/quadrotor.xml``)."""
+    header = ("<!-- The ipp-bench quadrotor, generated from ipp_bench/sim/quadrotor.py by\n"
+              "     `python -m ipp_bench.sim.quadrotor assets/quadrotor.xml`; edit the code, not this file.\n"
+              "     The scene attaches it with PyMJCF (ipp_bench/sim/scene.py, airframe=...); an MJCF\n"
+              "     with the same names (sites and actuators rotor0..rotor3, camera down) can replace it. -->\n")
+    return header + airframe_mjcf(params).to_xml_string(precision=6)
 
 
 def export_xml(path: str, params: QuadrotorParams = QuadrotorParams()) -> None:
-    """Writes the airframe as MJCF (for MuJoCo's viewer: ``python -m mujoco.viewer --mjcf PATH``)."""
-    spec = quadrotor_spec(params)
-    spec.compile()
-    header = ("<!-- The ipp-bench quadrotor, generated from ipp_bench/sim/quadrotor.py by\n"
-              "     `python -m ipp_bench.sim.quadrotor assets/quadrotor.xml`; edit the code, not this file.\n"
-              "     The simulation composes it into the weed-field scene with MjSpec at run time. -->\n")
+    """Writes the airframe as MJCF (look at it: ``python -m mujoco.viewer --mjcf PATH``)."""
     with open(path, "w", encoding="utf-8") as fh:
-        fh.write(header + spec.to_xml())
+        fh.write(airframe_xml(params))
 
 
 if __name__ == "__main__":

@@ -1,12 +1,18 @@
-"""The MuJoCo scene: textured weed field, lighting, and the quadrotor.
+"""The MuJoCo scene: textured weed field, lighting, and an attached quadrotor airframe.
 
-Composed with MuJoCo's own ``MjSpec`` rather than an MJCF string or dm_control's
-PyMJCF: the ground texture is a per-seed numpy array that goes straight into
-``MjsTexture.data`` (no temporary PNG, no base64 in XML), the map size comes
-from the task's grid at run time, the airframe from a frozen dataclass, and it
-needs nothing beyond the ``mujoco`` package (dm_control would add a dependency
-and its own GL handling). The model is compiled once per grid; a new episode
-only rewrites ``model.tex_data`` and the renderers re-upload that texture.
+Composed with dm_control's PyMJCF and compiled into a :class:`DeploymentPhysics` (a
+``dm_control.mujoco.Physics``): the weed field, the sun and the sky are this module's; the
+airframe is a separate MJCF model (:func:`~ipp_bench.sim.quadrotor.airframe_mjcf` by default)
+attached under the prefix ``quad/`` with a free joint, so a user replaces it with their own MJCF
+(``WeedScene(..., airframe=mjcf.from_path("my_quad.xml"))``; the names it must provide are
+:data:`~ipp_bench.sim.quadrotor.AIRFRAME_NAMES`). The controller's parameters (mass, inertia, arm
+length, thrust limits, rotor lag, camera) are read back from the compiled model
+(:func:`~ipp_bench.sim.quadrotor.airframe_params`), never assumed.
+
+The ground texture is a per-seed numpy array written straight into the compiled model's
+``tex_data`` (no temporary PNG, no base64 in XML; the MJCF declares a blank texture of the right
+size); the map size comes from the task's grid at run time. The model is compiled once per
+grid; a new episode only rewrites ``tex_data`` and the renderers re-upload that texture.
 
 Rendering is set for fast, stable colours in software rendering: no shadows
 (``<quality shadowsize="0"/>``), no multisampling (``offsamples=0``), no
@@ -23,7 +29,9 @@ import numpy as np
 
 from ipp_bench.sim.gl import mujoco
 
-from ipp_bench.sim.quadrotor import QuadrotorParams, add_quadrotor
+from dm_control import mjcf  # noqa: E402  (after ipp_bench.sim.gl chose the GL backend)
+
+from ipp_bench.sim.quadrotor import QuadrotorParams, airframe_mjcf, airframe_params, free_joint
 
 
 @dataclass(frozen=True)
@@ -48,82 +56,122 @@ class SceneConfig:
 
 
 SOIL_RGBA = (0.42, 0.33, 0.24, 1.0)
+AIRFRAME_PREFIX = "quad/"
 
 
-def build_spec(rows: int, cols: int, resolution: float, quad: QuadrotorParams = QuadrotorParams(),
-               cfg: SceneConfig = SceneConfig()) -> mujoco.MjSpec:
-    """Composes the scene; the ground texture starts blank (see :meth:`WeedScene.set_ground`)."""
-    spec = mujoco.MjSpec()
-    spec.modelname = "ipp_bench_weed_field"
-    spec.option.timestep = cfg.timestep
-    spec.option.density = cfg.air_density
-    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+class DeploymentPhysics(mjcf.Physics):
+    """The deployment's ``dm_control.mujoco.Physics`` (model, data, named access, ``render``).
 
+    One time step of the dm_control environment (:func:`ipp_bench.sim.load`) is a planner
+    decision: the task's ``before_step`` flies the chosen leg through the mission, which steps
+    this physics under the cascaded controller every ``timestep`` (:class:`~ipp_bench.sim.flight.Flight`)
+    and reads the camera on the way. The environment's own sub-stepping (``physics.step`` after
+    ``before_step``) would add a physics step without the controller, so :meth:`step` advances
+    nothing; fly the drone through ``Flight`` (``WeedScene.flight``) instead.
+    """
+
+    def step(self, nstep: int = 1) -> None:  # noqa: D401 - see the class docstring
+        """No physics of its own: the leg was flown in the task's ``before_step``."""
+        del nstep
+
+
+def build_mjcf(rows: int, cols: int, resolution: float, airframe: "mjcf.RootElement | None" = None,
+               cfg: SceneConfig = SceneConfig()) -> "mjcf.RootElement":
+    """Composes the scene with ``airframe`` attached (default: the shipped quadrotor).
+
+    Returns:
+        The scene's root. The ground texture starts blank (see :meth:`WeedScene.set_ground`).
+        ``airframe`` is attached as it is (its model renamed ``quad``), its free body placed at
+        (centre of the map, 10 m).
+    """
     width_m, height_m = cols * resolution, rows * resolution
-    vis = spec.visual
+    root = mjcf.RootElement(model="ipp_bench_weed_field")
+    root.option.timestep = cfg.timestep
+    root.option.density = cfg.air_density
+    root.option.integrator = "implicitfast"
+    # the attachment frame (a static body) fuses into the world, and static parts of the airframe
+    # into its free body: one rigid body carries the airframe's mass and inertia
+    root.compiler.fusestatic = True
+    vis = root.visual
     vis.quality.shadowsize = 0
     vis.quality.offsamples = 0
-    vis.global_.offwidth, vis.global_.offheight = cfg.max_render_size
+    gl_global = getattr(vis, "global")
+    gl_global.offwidth, gl_global.offheight = cfg.max_render_size
     vis.headlight.active = 0
     vis.map.znear = 0.005  # x extent: 0.3 m near plane for a 60 m scene
     vis.map.zfar = 10.0
-    spec.stat.extent = max(width_m, height_m) * 1.6
-    spec.stat.center = [width_m / 2, height_m / 2, 5.0]
+    root.statistic.extent = max(width_m, height_m) * 1.6
+    root.statistic.center = [width_m / 2, height_m / 2, 5.0]
 
-    sky = spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX,
-                           builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
-                           rgb1=[0.55, 0.7, 0.9], rgb2=[0.95, 0.97, 1.0], width=64, height=64)
-    del sky
+    root.asset.add("texture", name="sky", type="skybox", builtin="gradient", rgb1=[0.55, 0.7, 0.9],
+                   rgb2=[0.95, 0.97, 1.0], width=64, height=64)
     p = cfg.texels_per_cell
-    tex = spec.add_texture(name="weed_field", type=mujoco.mjtTexture.mjTEXTURE_2D,
-                           width=cols * p, height=rows * p, nchannel=3)
-    tex.data = bytes(rows * p * cols * p * 3)
-    ground = spec.add_material(name="weed_field", texrepeat=[1.0, 1.0], texuniform=False,
-                               specular=0.0, shininess=0.0, reflectance=0.0)
-    ground.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "weed_field"
+    # blank: the episode's texture is written into the compiled model's tex_data (WeedScene.set_ground)
+    root.asset.add("texture", name="weed_field", type="2d", builtin="flat", rgb1=[0.0, 0.0, 0.0],
+                   width=cols * p, height=rows * p)
+    root.asset.add("material", name="weed_field", texture="weed_field", texrepeat=[1.0, 1.0], texuniform=False,
+                   specular=0.0, shininess=0.0, reflectance=0.0)
 
-    world = spec.worldbody
-    world.add_light(name="sun", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
-                    pos=[width_m / 2, height_m / 2, 50.0], dir=[0.0, 0.0, -1.0], castshadow=False,
-                    ambient=[0.4, 0.4, 0.4], diffuse=[0.6, 0.6, 0.6], specular=[0.0, 0.0, 0.0])
+    world = root.worldbody
+    world.add("light", name="sun", type="directional", pos=[width_m / 2, height_m / 2, 50.0],
+              dir=[0.0, 0.0, -1.0], castshadow=False, ambient=[0.4, 0.4, 0.4], diffuse=[0.6, 0.6, 0.6],
+              specular=[0.0, 0.0, 0.0])
     # Thin boxes, not planes: MuJoCo draws a plane as a fine grid, which costs ~10x more
     # per frame in software rendering; a box's top face carries the whole 2D texture.
-    world.add_geom(name="field", type=mujoco.mjtGeom.mjGEOM_BOX, material="weed_field",
-                   size=[width_m / 2, height_m / 2, 0.05], pos=[width_m / 2, height_m / 2, -0.05])
-    world.add_geom(name="outer_soil", type=mujoco.mjtGeom.mjGEOM_BOX, rgba=list(SOIL_RGBA),
-                   size=[cfg.outer_ground, cfg.outer_ground, 0.05],
-                   pos=[width_m / 2, height_m / 2, -0.13], contype=0, conaffinity=0)
-    add_quadrotor(spec, quad, pos=(width_m / 2, height_m / 2, 10.0))
-    return spec
+    world.add("geom", name="field", type="box", material="weed_field",
+              size=[width_m / 2, height_m / 2, 0.05], pos=[width_m / 2, height_m / 2, -0.05])
+    world.add("geom", name="outer_soil", type="box", rgba=list(SOIL_RGBA),
+              size=[cfg.outer_ground, cfg.outer_ground, 0.05],
+              pos=[width_m / 2, height_m / 2, -0.13], contype=0, conaffinity=0)
+    airframe = airframe if airframe is not None else airframe_mjcf()
+    airframe.model = AIRFRAME_PREFIX.rstrip("/")
+    frame = root.attach(airframe)
+    frame.pos = [width_m / 2, height_m / 2, 10.0]
+    return root
 
 
 class WeedScene:
-    """Compiled scene: model, data, ids looked up once, and the ground texture.
+    """Compiled scene: the dm_control physics, ids looked up once, and the ground texture.
 
     Args:
         rows, cols, resolution: the task's grid (cells and metres per cell).
-        quad: airframe parameters.
+        quad: airframe parameters of the shipped airframe (ignored when ``airframe`` is given,
+            except ``thrust_coeff``, which no MJCF holds).
         cfg: simulation and rendering settings.
+        airframe: a PyMJCF model to fly instead of the shipped one (see the module docstring).
+
+    ``quad`` is then what the compiled model says (:func:`~ipp_bench.sim.quadrotor.airframe_params`).
+    ``model`` and ``data`` are the raw ``MjModel`` / ``MjData`` of ``physics`` (the control loop
+    steps them directly; named reads go through ``physics.named``).
     """
 
     def __init__(self, rows: int, cols: int, resolution: float,
-                 quad: QuadrotorParams = QuadrotorParams(), cfg: SceneConfig = SceneConfig()) -> None:
+                 quad: QuadrotorParams = QuadrotorParams(), cfg: SceneConfig = SceneConfig(),
+                 airframe: "mjcf.RootElement | None" = None) -> None:
         self.rows, self.cols, self.resolution = int(rows), int(cols), float(resolution)
-        self.quad, self.cfg = quad, cfg
-        self.spec = build_spec(self.rows, self.cols, self.resolution, quad, cfg)
-        self.model = self.spec.compile()
-        self.data = mujoco.MjData(self.model)
+        self.cfg = cfg
+        self.mjcf_model = build_mjcf(self.rows, self.cols, self.resolution,
+                                                  airframe if airframe is not None else airframe_mjcf(quad), cfg)
+        self.physics = DeploymentPhysics.from_mjcf_model(self.mjcf_model)
+        self.model = self.physics.model.ptr
+        self.data = self.physics.data.ptr
         m = self.model
-        self.body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "quad")
-        self.camera_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "quad/down")
+        self.quad = airframe_params(m, AIRFRAME_PREFIX, quad.thrust_coeff)
+        named = self.physics.named.model
+        joint = free_joint(m, AIRFRAME_PREFIX)
+        self.joint_name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, joint)
+        self.body_id = int(m.jnt_bodyid[joint])
+        self.camera_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, AIRFRAME_PREFIX + "down")
         self.light_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_LIGHT, "sun")
         self.texture_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXTURE, "weed_field")
-        joint = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "quad/free")
-        self.qpos_adr = int(m.jnt_qposadr[joint])
-        self.qvel_adr = int(m.jnt_dofadr[joint])
-        self.actuator_ids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"quad/rotor{i}")
+        self.qpos_adr = int(named.jnt_qposadr[self.joint_name])
+        self.qvel_adr = int(named.jnt_dofadr[self.joint_name])
+        self.actuator_ids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"{AIRFRAME_PREFIX}rotor{i}")
                                       for i in range(4)])
         adr, h, w = m.tex_adr[self.texture_id], m.tex_height[self.texture_id], m.tex_width[self.texture_id]
+        if int(m.tex_nchannel[self.texture_id]) != 3:
+            raise RuntimeError(f"the weed_field texture compiled with {m.tex_nchannel[self.texture_id]} "
+                               "channels, not 3")
         self._tex_view = m.tex_data[adr: adr + h * w * 3].reshape(h, w, 3)
         self.texture_version = 0  # bumped on every set_ground; renderers re-upload when it changes
 
@@ -152,9 +200,10 @@ class WeedScene:
 
     @property
     def position(self) -> np.ndarray:
-        return self.data.qpos[self.qpos_adr: self.qpos_adr + 3].copy()
+        """True position [m] (named read of the free joint)."""
+        return np.array(self.physics.named.data.qpos[self.joint_name][:3])
 
     @property
     def velocity(self) -> np.ndarray:
-        """World-frame linear velocity [m/s]."""
-        return self.data.qvel[self.qvel_adr: self.qvel_adr + 3].copy()
+        """World-frame linear velocity [m/s] (named read of the free joint)."""
+        return np.array(self.physics.named.data.qvel[self.joint_name][:3])

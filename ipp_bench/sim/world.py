@@ -78,11 +78,102 @@ class SimConfig:
         return dataclasses.replace(self, camera=dataclasses.replace(self.camera, image_size=int(size)))
 
     @staticmethod
+    def from_dict(section: dict) -> "SimConfig":
+        """The ``[sim]`` section of a task file: top-level fields, and one table per sub-section
+        (``[sim.camera]``, ``[sim.flight]``, ...); what a table leaves out keeps its default.
+
+        Raises:
+            ValueError: an unknown key (the valid ones listed) or a bad value (field and range named).
+        """
+        if not isinstance(section, dict):
+            raise ValueError(f"[sim] must be a table, got {section!r}")
+        base = SimConfig()
+        top, subs = {}, {}
+        for key, value in section.items():
+            if key in SIM_SECTIONS:
+                if not isinstance(value, dict):
+                    raise ValueError(f"[sim.{key}] must be a table, got {value!r}")
+                sub = getattr(base, key)
+                names = [f.name for f in dataclasses.fields(sub)]
+                for k in value:
+                    if k not in names:
+                        raise ValueError(f"unknown [sim.{key}] field {k!r}: valid are {names}")
+                subs[key] = dataclasses.replace(
+                    sub, **{k: _coerce(getattr(sub, k), v, f"sim.{key}.{k}") for k, v in value.items()})
+            elif key in sim_field_owners() and sim_field_owners()[key] == "":
+                top[key] = _coerce(getattr(base, key), value, f"sim.{key}")
+            else:
+                top_level = sorted(k for k, o in sim_field_owners().items() if o == "")
+                raise ValueError(f"unknown [sim] key {key!r}: valid are {top_level} and the tables "
+                                 f"{list(SIM_SECTIONS)}")
+        return dataclasses.replace(base, **subs, **top)
+
+    def replace(self, **overrides) -> "SimConfig":
+        """A copy with leaf fields set by their (unique) names: ``replace(image_size=480, wind_max=2.0)``.
+
+        Raises:
+            ValueError: an unknown name (the valid ones listed) or a bad value (field and range named).
+        """
+        owners = sim_field_owners()
+        top, subs = {}, {}
+        for name, value in overrides.items():
+            if name not in owners:
+                raise ValueError(f"unknown sim field {name!r}: valid are {sorted(owners)}")
+            owner = owners[name]
+            if owner:
+                subs.setdefault(owner, {})[name] = _coerce(getattr(getattr(self, owner), name), value, name)
+            else:
+                top[name] = _coerce(getattr(self, name), value, name)
+        new_subs = {k: dataclasses.replace(getattr(self, k), **v) for k, v in subs.items()}
+        return dataclasses.replace(self, **new_subs, **top)
+
+    @staticmethod
     def v0() -> "SimConfig":
         """The v0 deployment: ideal 128 px camera plus the sensor model's noise, stop at every waypoint."""
         return SimConfig(camera=V0_CAMERA, segmenter=WeedSegmenter(open_px=0, close_px=0), palette=TexturePalette.v0(),
                          flight=FlightConfig.v0(), disturbances=DisturbanceConfig.none(),
                          measurement="camera+noise", pixel_binning=False, pipeline="v0")
+
+
+#: the sub-sections of ``[sim]`` (nested dataclasses of :class:`SimConfig`)
+SIM_SECTIONS = ("camera", "segmenter", "palette", "flight", "disturbances", "scene", "gains")
+
+
+def sim_field_owners() -> dict[str, str]:
+    """Every leaf field of :class:`SimConfig` -> its sub-section ("" for the top level); names are unique."""
+    owners: dict[str, str] = {}
+    for f in dataclasses.fields(SimConfig):
+        if f.name in SIM_SECTIONS:
+            for g in dataclasses.fields(type(getattr(SimConfig(), f.name))):
+                assert g.name not in owners, f"sim field {g.name} is not unique"
+                owners[g.name] = f.name
+        else:
+            assert f.name not in owners, f"sim field {f.name} is not unique"
+            owners[f.name] = ""
+    return owners
+
+
+def _coerce(default, value, where: str):
+    """A TOML / JSON value in the type of the field's default (lists -> tuples), or a one-line error."""
+    if isinstance(default, tuple):
+        if not isinstance(value, (list, tuple)) or len(value) != len(default):
+            raise ValueError(f"{where} = {value!r} is invalid: expected {len(default)} numbers, e.g. {list(default)}")
+        return tuple(_coerce(d, v, where) for d, v in zip(default, value))
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ValueError(f"{where} = {value!r} is invalid: expected true or false")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"{where} = {value!r} is invalid: expected an integer")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{where} = {value!r} is invalid: expected a number")
+        return float(value)
+    if isinstance(default, str) and not isinstance(value, str):
+        raise ValueError(f"{where} = {value!r} is invalid: expected a string")
+    return value
 
 
 @dataclass(frozen=True)
@@ -109,16 +200,26 @@ class WeedWorld:
             its binning altitude and factor decide the read-out binning.
         speed: cruise speed [m/s].
         cfg: deployment settings.
+        airframe: a PyMJCF quadrotor to fly instead of the shipped one (see :mod:`ipp_bench.sim.scene`);
+            its camera's field of view must equal the sensor model's.
     """
 
     def __init__(self, grid: GridConfig, sensor: SensorConfig, speed: float = 2.0,
-                 cfg: SimConfig = SimConfig()) -> None:
+                 cfg: SimConfig = SimConfig(), airframe=None) -> None:
         self.grid, self.cfg, self.sensor_cfg = grid, cfg, sensor
         # one OpenCV thread per process, as for BLAS (ipp_bench._threads): on 2 shared cores a second
         # thread only waits for the first; parallelism comes from worker processes
         cv2.setNumThreads(1)
-        self.quad = QuadrotorParams(camera_fovy_deg=sensor.fov_deg, rotor_model=cfg.rotor_model)
-        self.scene = WeedScene(grid.rows, grid.cols, grid.resolution, self.quad, cfg.scene)
+        shipped = QuadrotorParams(camera_fovy_deg=sensor.fov_deg, rotor_model=cfg.rotor_model)
+        self.scene = WeedScene(grid.rows, grid.cols, grid.resolution, shipped, cfg.scene, airframe=airframe)
+        self.quad = self.scene.quad
+        if abs(self.quad.camera_fovy_deg - sensor.fov_deg) > 1e-9:
+            raise ValueError(f"airframe: camera 'down' has fovy {self.quad.camera_fovy_deg} deg, the sensor model "
+                             f"{sensor.fov_deg} deg (fov_deg): they must be equal")
+        if self.quad.rotor_model != cfg.rotor_model:
+            raise ValueError(f"airframe: its rotor actuators are the {self.quad.rotor_model!r} model, "
+                             f"SimConfig.rotor_model is {cfg.rotor_model!r} (filterexact dynamics: 'thrust'; "
+                             "none: 'speed')")
         self.flight = Flight(self.scene, speed=speed, cfg=cfg.flight, gains=cfg.gains,
                              disturbances=cfg.disturbances)
         self.renderer = SceneRenderer(self.scene)

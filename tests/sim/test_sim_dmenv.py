@@ -1,40 +1,77 @@
-"""The dm_env view of the deployment, checked by dm_env's own conformance mixin."""
+"""The deployment as a dm_control environment, checked by dm_env's own conformance mixin."""
 
 import numpy as np
 import pytest
 
 pytest.importorskip("mujoco")
-dm_env = pytest.importorskip("dm_env")
+pytest.importorskip("dm_control")
 
 from absl.testing import absltest  # noqa: E402
+from dm_control import mujoco as dm_mujoco  # noqa: E402
+from dm_control.rl import control  # noqa: E402
 from dm_env import test_utils  # noqa: E402
 
-from ipp_bench.sim.dmenv import DeploymentEnvironment  # noqa: E402
+import ipp_bench.sim  # noqa: E402
 
 
 class DeploymentConformanceTest(test_utils.EnvironmentTestMixin, absltest.TestCase):
-    """dm_env's interface contract (FIRST / MID / LAST, specs, step after the end)."""
+    """dm_env's interface contract (FIRST / MID / LAST, specs, step after the end), on ``ipp_bench.sim.load``."""
 
     def make_object_under_test(self):
-        return DeploymentEnvironment(seed=0, budget_s=16.0)
+        return ipp_bench.sim.load(seed=0, budget_s=16.0)
 
     def make_action_sequence(self):
         # affordable neighbours until the budget runs out, then one more step: the episode ends
         # and dm_env's contract for the step after LAST (a new FIRST) is exercised
         env = self.environment
         for _ in range(14):
-            mission = env.gym_env.mission
-            if mission is None:
+            task = env.task
+            if task.mission is None:
                 yield 0
                 continue
-            mask = env.gym_env.action_masks()
+            mask = task.action_masks()
             yield int(np.flatnonzero(mask)[0]) if mask.any() else 0
+
+
+def test_load_is_a_dm_control_environment_over_one_core():
+    env = ipp_bench.sim.load("MuJoCoWeed15-v1", seed=1, budget_s=12.0)
+    assert isinstance(env, control.Environment)
+    assert isinstance(env.physics, dm_mujoco.Physics)
+    assert isinstance(env.task, control.Task)
+    ts = env.reset()
+    task = env.task
+    # the task is the gymnasium environment itself: one mission, stepped by the dm_control face
+    assert task.world.scene.physics is env.physics and task.mission is not None
+    start = env.physics.named.data.qpos[task.world.scene.joint_name][:3].copy()
+    np.testing.assert_allclose(start, task.mission.position, atol=1e-9)
+    t0 = env.physics.data.time
+    ts = env.step(int(np.flatnonzero(ts.observation["action_mask"])[0]))
+    # one time step is one leg: the physics flew it (thousands of steps), the mission clock agrees
+    assert env.physics.data.time - t0 > 1.0
+    assert task.mission.time_s == pytest.approx(task.world.flight.ref_time)
+    assert ts.reward == pytest.approx(task._dm_last[1]) and ts.reward >= 0.0
+    # named reads of the physics see the flown drone
+    flown = env.physics.named.data.qpos[task.world.scene.joint_name][:3]
+    assert np.linalg.norm(flown - start) > 1.0
+    frame = env.physics.render(48, 48, camera_id="quad/down")
+    assert frame.shape == (48, 48, 3) and frame.std() > 0
+    env.close()
+
+
+def test_bad_action_is_one_line_and_other_tasks_are_refused():
+    env = ipp_bench.sim.load(seed=0, budget_s=12.0)
+    env.reset()
+    with pytest.raises(ValueError, match=r"neighbour index in \[0, 20\)"):
+        env.step(99)
+    with pytest.raises(ValueError, match="not a MuJoCo deployment"):
+        ipp_bench.sim.load("Grid15Eval-v1")
+    env.close()
 
 
 def test_same_seed_same_episode_and_masked_action_ends_it():
     runs = []
     for _ in range(2):
-        env = DeploymentEnvironment(seed=3, budget_s=10.0)
+        env = ipp_bench.sim.load(seed=3, budget_s=10.0)
         ts = env.reset()
         assert set(ts.observation) >= {"node_features", "action_mask", "estimated_position"}
         rewards = []
@@ -51,3 +88,23 @@ def test_same_seed_same_episode_and_masked_action_ends_it():
         env.close()
     assert runs[0][0] == runs[1][0]
     np.testing.assert_array_equal(runs[0][1], runs[1][1])
+
+
+def test_viewer_loader_and_runtime_without_a_display():
+    """What ``dm_control.viewer.launch`` does with the loader, minus the window: its Runtime
+    builds the environment and steps it with the planner policy."""
+    from dm_control.viewer import runtime
+
+    from ipp_bench.sim.viewer import PlannerPolicy, environment_loader
+
+    loader = environment_loader("ipp_bench/MuJoCoWeed15-v1", seed=0, budget_s=12.0)
+    env = loader()
+    rt = runtime.Runtime(env, policy=PlannerPolicy(env, "greedy"))
+    rt.tick(0.0, paused=False)  # starts the episode
+    assert env.task.mission is not None
+    t0 = env.physics.data.time
+    rt.tick(1.0, paused=False)  # one simulated second of viewer time: one leg of greedy
+    assert env.physics.data.time > t0 and len(env.task.mission.path) >= 2
+    with pytest.raises(ValueError, match="continuous planner"):
+        PlannerPolicy(env, "cmaes")
+    env.close()

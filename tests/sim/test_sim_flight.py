@@ -114,10 +114,10 @@ def test_leg_reference_profile():
 
 def test_exported_airframe_matches_the_code():
     from ipp_bench.data import data_dir
-    from ipp_bench.sim.quadrotor import quadrotor_spec
+    from ipp_bench.sim.quadrotor import airframe_xml
 
     shipped = mujoco.MjModel.from_xml_path(str(data_dir("assets") / "quadrotor.xml"))
-    code = quadrotor_spec().compile()
+    code = mujoco.MjModel.from_xml_string(airframe_xml())
     for name in ("body_mass", "body_inertia", "actuator_gear", "actuator_ctrlrange", "actuator_dynprm",
                  "geom_size", "geom_pos", "site_pos", "cam_fovy", "cam_pos"):
         np.testing.assert_allclose(getattr(shipped, name), getattr(code, name), rtol=1e-5, err_msg=name)

@@ -15,7 +15,7 @@ from ipp_bench.envs.registry import _load  # noqa: E402
 from ipp_bench.sim import calibrate  # noqa: E402
 from ipp_bench.planners.episode import fly_episode  # noqa: E402
 from ipp_bench.sim.env import MuJoCoIPPEnvV1  # noqa: E402
-from ipp_bench.sim.mission import normalised_innovation  # noqa: E402
+from ipp_bench.belief import normalised_innovation  # noqa: E402
 
 TASK = "ipp_bench/MuJoCoWeed15-v1"
 

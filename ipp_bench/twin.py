@@ -1,0 +1,135 @@
+"""The graph twin's sensor: the deployment camera's error, drawn instead of rendered.
+
+:class:`CameraErrorLegs` is a mission :class:`~ipp_bench.mission.Platform` that flies the
+deployment's own reference legs (:class:`~ipp_bench.legs.ContinuousLeg`: velocity-continuous
+through waypoints, the same clock as ``MuJoCoWeed15-v1``'s, without physics, wind or estimator) and
+draws its read-outs from the error model that ``python -m ipp_bench.sim.calibrate`` fits to the
+MuJoCo camera, so that planners and training see the deployment's sensor without MuJoCo. The
+camera is read every ``measurement_spacing`` metres along the reference (followed in steps of
+``step_s``, the deployment's physics step) and on arrival.
+
+The error model:
+
+* a persistent error per cell, resolution factor and episode, drawn once at the start:
+  ``e_f,c = sqrt(s_f phi(x_c)) u_f,c`` with s_f the task's ``persistent_var`` /
+  ``persistent_var_binned``, phi(t) = :func:`~ipp_bench.belief.value_scale` (``noise_floor``) at
+  the cell's true value x_c (a cell with nothing to misread errs less), corr(u_1,c, u_2,c) =
+  ``persistent_corr``, and each u_f a unit-variance Gaussian field over the cells with a squared-
+  exponential correlation whose value between edge-neighbours is ``neighbour_corr`` (0.59,
+  measured between neighbouring cells of binned read-outs, ``benchmarks/RESULTS.md``, "What the
+  camera gets wrong": the cells of a binned 2 x 2 block share much of their error);
+* white noise on top: ``N(0, f^e a (1 - exp(-b h)) phi(w . x))`` per read-out row w.
+
+A row measures ``z = w . (x + e_f) + v``. The belief is the task's (the deployment's model,
+:class:`~ipp_bench.belief.PersistentErrorBelief`), not told about the spatial correlation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .belief import cell_centres, value_scale
+from .legs import ContinuousLeg, continuous_durations
+from .mission import LegOutcome, Mission
+
+NEIGHBOUR_CORR = 0.59  # [-] correlation of the persistent errors of edge-neighbouring cells (measured, f = 2)
+
+
+class CameraErrorLegs:
+    """The deployment's reference legs, read by the calibrated camera-error model (module docstring).
+
+    Args:
+        neighbour_corr: correlation of the persistent errors of two edge-neighbouring cells, in [0, 1).
+        ramp_s: velocity-ramp time of the reference legs [s] (the deployment's ``FlightConfig.ramp_s``).
+        step_s: step along the reference [s] at which the distance travelled is counted.
+    """
+
+    def __init__(self, neighbour_corr: float = NEIGHBOUR_CORR, ramp_s: float = 1.0, step_s: float = 0.005) -> None:
+        if not (isinstance(neighbour_corr, (int, float)) and 0.0 <= neighbour_corr < 1.0):
+            raise ValueError(f"neighbour_corr = {neighbour_corr!r} is invalid: expected a number in [0, 1)")
+        if not (ramp_s > 0.0 and 0.0 < step_s <= 0.1):
+            raise ValueError(f"ramp_s = {ramp_s}, step_s = {step_s} are invalid: expected ramp_s > 0, step_s in (0, 0.1] s")
+        self.neighbour_corr, self.ramp_s, self.step_s = float(neighbour_corr), float(ramp_s), float(step_s)
+        self.errors: dict[int, np.ndarray] = {}
+        self.ref_pos = np.zeros(3)
+        self.ref_vel = np.zeros(3)
+
+    def begin(self, mission: Mission) -> None:
+        """Draws the episode's persistent errors from ``mission.rng`` (before any read-out); at rest."""
+        cfg, grid = mission.sensor.cfg, mission.config.grid
+        n = grid.n_cells
+        xy = cell_centres((grid.rows, grid.cols), grid.resolution)
+        if self.neighbour_corr > 0.0:
+            ell2 = grid.resolution ** 2 / (2.0 * math.log(1.0 / self.neighbour_corr))
+            d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)
+            L = np.linalg.cholesky(np.exp(-d2 / (2.0 * ell2)) + 1e-9 * np.eye(n))
+        else:
+            L = np.eye(n)
+        rho = float(cfg.persistent_corr)
+        z1, z2 = mission.rng.standard_normal((2, n))
+        u = {1: L @ z1, int(cfg.binning): L @ (rho * z1 + math.sqrt(max(1.0 - rho * rho, 0.0)) * z2)}
+        scale = value_scale(mission._truth_flat, cfg.noise_floor)
+        self.errors = {f: np.sqrt(cfg.persistent(f) * scale) * uf for f, uf in u.items()}
+        self.ref_pos = np.array(mission.position, dtype=np.float64)
+        self.ref_vel = np.zeros(3)
+
+    def leg_durations(self, mission: Mission, start_xyz, end_xyzs) -> np.ndarray:
+        """Exact from the current position (the reference's velocity is known); from another start the
+        upper bound over incoming velocities, as the deployment's oracle."""
+        speed = mission.config.mission.speed
+        start = np.asarray(start_xyz, dtype=np.float64).reshape(3)
+        if np.linalg.norm(start - mission.position) <= 1e-6:
+            return continuous_durations(self.ref_pos, self.ref_vel, end_xyzs, speed, self.ramp_s)
+        return continuous_durations(start, None, end_xyzs, speed, self.ramp_s)
+
+    def fly(self, mission: Mission, target: np.ndarray, length_m: float) -> LegOutcome:
+        del length_m
+        speed, spacing = mission.config.mission.speed, mission.config.mission.measurement_spacing
+        leg = ContinuousLeg(self.ref_pos, self.ref_vel, target, speed, self.ramp_s)
+        t0, budget = mission.time_s, mission.budget_s
+        end = t0 + leg.duration
+        limit = min(end, budget)
+        records: list = []
+        since, flown = mission._since_measurement, 0.0
+        last = tuple(self.ref_pos.tolist())
+        dt, k = self.step_s, 1
+        while t0 + k * dt < limit - 1e-9:
+            here = leg.sample(k * dt)[0]
+            step = math.dist(here, last)
+            last = here
+            flown += step
+            since += step
+            if since >= spacing - 1e-9:
+                records.extend(self._read(mission, [here], [min(t0 + k * dt, budget)]))
+                since = 0.0
+            k += 1
+        if limit >= end - 1e-12:  # the whole leg: read on arrival
+            flown += math.dist(tuple(np.asarray(target, dtype=np.float64).tolist()), last)
+            records.extend(self._read(mission, [target], [limit]))
+            self.ref_pos, self.ref_vel = leg.end.copy(), leg.end_velocity()
+            return LegOutcome(records, limit, limit - t0, flown, np.asarray(target, dtype=np.float64), 0.0)
+        p, v, _ = leg.sample(limit - t0)  # out of budget on the way: the leg ends where the reference was
+        self.ref_pos, self.ref_vel = np.array(p), np.array(v)
+        return LegOutcome(records, limit, limit - t0, flown, self.ref_pos.copy(), since)
+
+    def read_here(self, mission: Mission, time_s: float) -> list:
+        return self._read(mission, [mission.position], [time_s])
+
+    def _read(self, mission: Mission, points, times) -> list:
+        truth, floor = mission._truth_flat, mission.sensor.cfg.noise_floor
+        records = []
+        for p, t in zip(points, times):
+            p = np.asarray(p, dtype=np.float64)
+            obs = mission.sensor.observe(p)
+            mission.measurement_log.append((float(t), *map(float, p)))
+            if obs is None:
+                records.append((None, None, float(t)))
+                continue
+            W = obs.weights
+            clean = W @ truth[obs.cells]
+            white = (obs.var if obs.persistent is None else obs.var - obs.persistent) * value_scale(clean, floor)
+            z = clean + W @ self.errors[obs.factor][obs.cells] + np.sqrt(white) * mission.rng.standard_normal(obs.m)
+            records.append((obs, z, float(t)))
+        return records

@@ -82,6 +82,8 @@ def record(task: str, planner: str, seed: int, out: str, budget: float | None = 
     try:
         log = fly_episode(env, planner, seed, on_reset=on_reset)
         n = video["v"].close(env.mission.time_s)
+        if bar is not None:  # the mission is over: 100 %, even when it ended before the last second
+            bar.update(max(bar.total - bar.n, 0.0))
     except BaseException:
         if "v" in video:
             video["v"].abort()

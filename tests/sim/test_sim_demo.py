@@ -92,3 +92,11 @@ def test_unwritable_output_is_refused_before_flying(tmp_path, capsys, monkeypatc
     argv = [*SHORT, "--out", str(tmp_path / "ok.mp4"), "--compare", "coverage", "--compare-out",
             str(tmp_path / "taken" / "c.png")]
     assert run_demo(_args(*argv)) == 2 and not flown
+
+
+def test_the_progress_bar_reaches_100_percent_when_the_mission_ends(tmp_path, capsys):
+    """A mission ends when no leg is affordable, before its last second: the bar still ends full."""
+    argv = [a for a in SHORT if a != "--no-progress"]
+    assert run_demo(_args(*argv, "--out", str(tmp_path / "demo.mp4"))) == 0
+    err = capsys.readouterr().err
+    assert "100%" in err and "4/4 s mission" in err, err[-500:]

@@ -34,6 +34,7 @@ from collections.abc import Sequence
 from . import __version__
 
 EXIT_USAGE = 2
+MAX_FIT_MAPS = 10_000  # fit-prior --maps: the fit's cost grows linearly, 40 is the default
 EXIT_FAILED = 1  # an episode failed part-way (finished ones are kept)
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
 EXIT_TERMINATED = 143  # 128 + SIGTERM
@@ -150,8 +151,8 @@ def cmd_fit_prior(args: argparse.Namespace) -> int:
     seed = gp_fit.FIT_SEED if args.seed is None else args.seed
     try:
         spec = task_spec(args.task)
-        if maps < 2:
-            raise ValueError(f"--maps = {maps} is invalid: expected an integer >= 2")
+        if not 2 <= maps <= MAX_FIT_MAPS:
+            raise ValueError(f"--maps = {maps} is invalid: expected an integer in [2, {MAX_FIT_MAPS}]")
         if seed < 0:
             raise ValueError(f"--seed = {seed} is invalid: expected an integer >= 0")
         if args.write and not os.access(spec.source, os.W_OK):

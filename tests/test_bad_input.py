@@ -549,3 +549,8 @@ def test_sigterm_on_the_ray_backend_is_the_same_one_line_and_exit_143(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 143, stderr
     assert "SIGTERM received" not in stderr and "episodes kept in" in stderr
+
+
+def test_fit_prior_maps_beyond_its_bound_is_one_line(capsys):
+    rc, out, err = _cli(["fit-prior", "--task", "Grid15Eval-v1", "--maps", "100000000"], capsys)
+    assert rc == 2 and "--maps = 100000000 is invalid: expected an integer in [2, 10000]" in err and "fitting" not in out

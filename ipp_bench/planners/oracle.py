@@ -55,17 +55,22 @@ class LookBatch:
             self.var[j, :rows] = o.var
 
     def trace_reductions(self, cov: np.ndarray, roi: np.ndarray) -> np.ndarray:
-        """(b,) Tr(P - P+) over the cells ``roi`` (bool mask) of each look alone:
-        sum over ROI columns r of (H P)_r^T S^-1 (H P)_r = sum((S^-1) * (H P_roi)(H P_roi)^T),
-        S = H P H^T + R (small: one look's rows)."""
+        """(b,) Tr(P - P+) over the cells ``roi`` (bool mask) of each look alone.
+
+        With S = H P H^T + R, the reduction is sum over ROI columns r of (H P)_r^T S^-1 (H P)_r
+        = sum(S^-1 * H Q H^T) with Q = P[:, roi] P[roi, :]: one product over the whole map, then
+        each look reads its own few cells of P and Q.
+        """
         n = cov.shape[0]
         if getattr(self, "_n", None) != n:
             self._n, self._flat = n, self.cells[:, :, None] * n + self.cells[:, None, :]
-        HP = self.W @ cov[:, roi][self.cells]  # (b, m, r): H P restricted to the ROI columns
-        S = self.W @ cov.ravel()[self._flat] @ self.W.transpose(0, 2, 1)
+        P_roi = cov[:, roi]
+        Q = P_roi @ P_roi.T
+        Wt = self.W.transpose(0, 2, 1)
+        S = self.W @ cov.ravel()[self._flat] @ Wt
         idx = np.arange(S.shape[1])
         S[:, idx, idx] += self.var
-        return (np.linalg.inv(S) * (HP @ HP.transpose(0, 2, 1))).sum(axis=(1, 2))
+        return (np.linalg.inv(S) * (self.W @ Q.ravel()[self._flat] @ Wt)).sum(axis=(1, 2))
 
 
 class OraclePlanner(GreedyPlanner):

@@ -176,7 +176,8 @@ def _descendants_alive(pgid: int) -> list[int]:
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc (Linux)")
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, pytest.param(signal.SIGKILL, marks=pytest.mark.slow)],
+                         ids=["SIGTERM", "SIGKILL"])
 def test_sigterm_leaves_no_child_behind_and_a_rerun_completes(tmp_path, sig):
     """SIGTERM stops the run like Ctrl-C; after SIGKILL (no cleanup at all) the workers notice
     that the run is gone and exit by themselves."""

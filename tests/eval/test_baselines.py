@@ -71,7 +71,12 @@ def test_the_committed_folders_are_found():
     assert {"quick", "v1", "deployment_v1"} <= set(FOLDERS), FOLDERS
 
 
-@pytest.mark.parametrize("folder", FOLDERS)
+#: folders the default run reruns (the main job's and the newest benchmark's); the others with -m slow
+DEFAULT_RUN = {"quick", "v2"}
+
+
+@pytest.mark.parametrize("folder", [f if f in DEFAULT_RUN else pytest.param(f, marks=pytest.mark.slow)
+                                    for f in FOLDERS])
 def test_a_committed_folder_reruns_as_already_complete(folder, tmp_path):
     readme = readme_commands()
     assert folder in readme, f"baselines/{folder} has no row in baselines/README.md"

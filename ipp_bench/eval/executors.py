@@ -23,6 +23,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -226,6 +227,7 @@ class RayExecutor:
         self.workers = workers
         self.address = address or os.environ.get("RAY_ADDRESS") or None
         self._owns = False
+        self._local = False  # a local Ray started here (its processes are ours to clean up)
         # ray.init installs a C++ handler that dumps a stack and kills the process on SIGTERM; the
         # caller's handler (the leaderboard: stop like Ctrl-C, keep the episodes) is put back after it
         handler = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
@@ -245,6 +247,7 @@ class RayExecutor:
         else:
             ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
             self._owns = True
+            self._local = True
             self.where = f"a local Ray with {workers} CPUs"
         if callable(handler):
             signal.signal(signal.SIGTERM, handler)
@@ -271,11 +274,80 @@ class RayExecutor:
 
     def close(self, abort: bool = False) -> None:
         if self._owns and self._ray.is_initialized():
+            # a local Ray's helpers (raylet, dashboard and runtime-env agents) are this process's
+            # descendants until the raylet dies; the agents then notice only after a heartbeat
+            # timeout (seen: still alive a minute later), so the ones left after the shutdown go
+            local = self._local
+            helpers = [p for p in _descendants(os.getpid()) if _is_ray(p[0])] if local else []
             self._ray.shutdown()
+            if helpers:
+                _reap(helpers)
         self._owns = False
 
     def describe(self) -> str:
         return f"Ray tasks on {self.where}"
+
+
+def _descendants(pid: int) -> list[tuple[int, str]]:
+    """(pid, start time) of the live descendants of ``pid``, from /proc ([] where there is none)."""
+    parents: dict[int, tuple[int, str]] = {}
+    try:
+        entries = [e for e in os.listdir("/proc") if e.isdigit()]
+    except OSError:
+        return []
+    for entry in entries:
+        try:
+            with open(f"/proc/{entry}/stat") as fh:
+                stat = fh.read()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()
+        if fields[0] != "Z":
+            parents[int(entry)] = (int(fields[1]), fields[19])
+    out, frontier = [], [pid]
+    while frontier:
+        parent = frontier.pop()
+        for child, (ppid, start) in parents.items():
+            if ppid == parent:
+                out.append((child, start))
+                frontier.append(child)
+    return out
+
+
+def _reap(processes: list[tuple[int, str]], grace_s: float = 3.0) -> None:
+    """SIGKILL those of ``processes`` (pid, start time) still alive after ``grace_s``; a pid whose
+    start time changed is another process and is left alone."""
+    deadline = time.monotonic() + grace_s
+    alive = processes
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.1)
+        alive = [p for p in alive if _same_process_alive(*p)]
+    for pid, start in alive:
+        if _same_process_alive(pid, start):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+
+
+def _is_ray(pid: int) -> bool:
+    """Whether process ``pid`` is one of Ray's (its command line names Ray: raylet, gcs_server, ray::...)."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            cmd = fh.read().replace(b"\0", b" ")
+    except OSError:
+        return False
+    return cmd.startswith(b"ray::") or b"/ray/" in cmd
+
+
+def _same_process_alive(pid: int, start: str) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            stat = fh.read()
+    except OSError:
+        return False
+    fields = stat[stat.rindex(")") + 2:].split()
+    return fields[0] != "Z" and fields[19] == start
 
 
 def check_workers(workers: int) -> None:

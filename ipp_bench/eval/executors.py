@@ -277,8 +277,7 @@ class RayExecutor:
             # a local Ray's helpers (raylet, dashboard and runtime-env agents) are this process's
             # descendants until the raylet dies; the agents then notice only after a heartbeat
             # timeout (seen: still alive a minute later), so the ones left after the shutdown go
-            local = self._local
-            helpers = [p for p in _descendants(os.getpid()) if _is_ray(p[0])] if local else []
+            helpers = [p for p in _descendants(os.getpid()) if _is_ray(p[0])] if self._local else []
             self._ray.shutdown()
             if helpers:
                 _reap(helpers)
@@ -288,21 +287,26 @@ class RayExecutor:
         return f"Ray tasks on {self.where}"
 
 
+def _stat_fields(pid: int | str) -> list[str] | None:
+    """The fields of ``/proc/<pid>/stat`` after the command name (state first), or None (gone, or no /proc)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            stat = fh.read()
+    except OSError:
+        return None
+    return stat[stat.rindex(")") + 2:].split()
+
+
 def _descendants(pid: int) -> list[tuple[int, str]]:
     """(pid, start time) of the live descendants of ``pid``, from /proc ([] where there is none)."""
-    parents: dict[int, tuple[int, str]] = {}
     try:
         entries = [e for e in os.listdir("/proc") if e.isdigit()]
     except OSError:
         return []
+    parents: dict[int, tuple[int, str]] = {}
     for entry in entries:
-        try:
-            with open(f"/proc/{entry}/stat") as fh:
-                stat = fh.read()
-        except OSError:
-            continue
-        fields = stat[stat.rindex(")") + 2:].split()
-        if fields[0] != "Z":
+        fields = _stat_fields(entry)
+        if fields is not None and fields[0] != "Z":
             parents[int(entry)] = (int(fields[1]), fields[19])
     out, frontier = [], [pid]
     while frontier:
@@ -312,6 +316,22 @@ def _descendants(pid: int) -> list[tuple[int, str]]:
                 out.append((child, start))
                 frontier.append(child)
     return out
+
+
+def _same_process_alive(pid: int, start: str) -> bool:
+    """Whether ``pid`` is alive and still the process that started at ``start`` (not a reused pid)."""
+    fields = _stat_fields(pid)
+    return fields is not None and fields[0] != "Z" and fields[19] == start
+
+
+def _is_ray(pid: int) -> bool:
+    """Whether process ``pid`` is one of Ray's (its command line names Ray: raylet, gcs_server, ray::...)."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            cmd = fh.read().replace(b"\0", b" ")
+    except OSError:
+        return False
+    return cmd.startswith(b"ray::") or b"/ray/" in cmd
 
 
 def _reap(processes: list[tuple[int, str]], grace_s: float = 3.0) -> None:
@@ -328,26 +348,6 @@ def _reap(processes: list[tuple[int, str]], grace_s: float = 3.0) -> None:
                 os.kill(pid, signal.SIGKILL)
             except OSError:
                 pass
-
-
-def _is_ray(pid: int) -> bool:
-    """Whether process ``pid`` is one of Ray's (its command line names Ray: raylet, gcs_server, ray::...)."""
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as fh:
-            cmd = fh.read().replace(b"\0", b" ")
-    except OSError:
-        return False
-    return cmd.startswith(b"ray::") or b"/ray/" in cmd
-
-
-def _same_process_alive(pid: int, start: str) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            stat = fh.read()
-    except OSError:
-        return False
-    fields = stat[stat.rindex(")") + 2:].split()
-    return fields[0] != "Z" and fields[19] == start
 
 
 def check_workers(workers: int) -> None:

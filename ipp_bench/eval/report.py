@@ -140,8 +140,9 @@ def _pct(x: float) -> str:
     return f"{x:.1f}"
 
 
-def _seconds(x: float) -> str:
-    """Three significant digits without exponent: 3.94, 0.0123, 0.0000210."""
+def _milliseconds(x: float) -> str:
+    """A time in seconds written in ms, three significant digits without exponent: 3940, 12.3, 0.0210."""
+    x = 1000.0 * x
     if x <= 0 or not math.isfinite(x):
         return f"{x:g}"
     digits = max(0, 2 - math.floor(math.log10(x)))
@@ -220,7 +221,7 @@ def markdown_table(agg: Aggregate) -> str:
     header = ["Environment", "Method"]
     for _, label in REDUCTIONS:
         header += [f"{label} {t:g} s" if i == 0 else f"{t:g} s" for i, t in enumerate(times)]
-    header.append("Runtime per decision [s]")
+    header.append("Runtime per decision [ms]")
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join([":--", ":--"] + ["--:"] * (len(header) - 2)) + "|"]
     for task in agg.tasks:
         planners = [p for p in ordered(agg.planners) if agg.episodes(task, p)]
@@ -231,7 +232,7 @@ def markdown_table(agg: Aggregate) -> str:
                 means = {p: s[0] for p in ranked if (s := agg.stat(task, p, t, key))}
                 best[(key, t)] = _best(means, _pct, lowest=False)
         runtime_means = {p: s[0] for p in ranked if (s := agg.runtime_stat(task, p))}
-        best_runtime = _best(runtime_means, _seconds, lowest=True)
+        best_runtime = _best(runtime_means, _milliseconds, lowest=True)
         for i, planner in enumerate(planners):
             if is_reference(planner) and (i == 0 or not is_reference(planners[i - 1])):
                 lines.append("| " + " | ".join(["", REFERENCE_MARKER] + [""] * (len(header) - 2)) + " |")
@@ -239,7 +240,7 @@ def markdown_table(agg: Aggregate) -> str:
             for key, _ in REDUCTIONS:
                 for t in times:
                     row.append(_cell(agg.stat(task, planner, t, key), _pct, "%", planner in best[(key, t)]))
-            row.append(_cell(agg.runtime_stat(task, planner), _seconds, "", planner in best_runtime))
+            row.append(_cell(agg.runtime_stat(task, planner), _milliseconds, "", planner in best_runtime))
             lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
@@ -358,7 +359,7 @@ def plot_curves(agg: Aggregate, task: str, path: str | Path) -> Path:
         ax.set_xlabel("mission time [s]")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize="small")
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside right center", fontsize="small")  # not over data
     fig.suptitle(f"{short_task(task)}: mean and {LEVEL:.0%} bootstrap band over episodes")
     path = Path(path)
     write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
@@ -377,16 +378,17 @@ def plot_runtime(agg: Aggregate, path: str | Path) -> Path:
         mean = np.array([s[0] if s else np.nan for s in stats])
         low = np.array([(s[0] if s[1] is None else s[1]) if s else np.nan for s in stats], dtype=float)
         high = np.array([(s[0] if s[2] is None else s[2]) if s else np.nan for s in stats], dtype=float)
-        floor = 1e-7  # a log axis cannot show 0
+        mean, low, high = 1000 * mean, 1000 * low, 1000 * high  # [ms]
+        floor = 1e-4  # a log axis cannot show 0
         mean_c = np.maximum(mean, floor)
         err = np.vstack([mean_c - np.maximum(low, floor), np.maximum(high, floor) - mean_c])
         ax.bar(x + (j - (len(agg.tasks) - 1) / 2) * width, mean_c, width, yerr=err, capsize=3,
                label=short_task(task))
     ax.set_xticks(x, agg.planners, rotation=20, ha="right")
     ax.set_yscale("log")
-    ax.set_ylabel("runtime per decision [s]")
+    ax.set_ylabel("runtime per decision [ms]")
     ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize="small")
+    fig.legend(loc="outside right center", fontsize="small")  # beside the bars, never over them
     ax.set_title("Runtime per decision: mean over episodes, 95% bootstrap interval", fontsize="medium")
     path = Path(path)
     write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))

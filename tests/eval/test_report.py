@@ -44,14 +44,14 @@ def test_markdown_has_table_one_layout_and_bolds_the_best():
     lines = table.strip().splitlines()
     header = [c.strip() for c in lines[0].strip("|").split("|")]
     assert header == ["Environment", "Method", "Uncertainty reduction 50 s", "100 s",
-                      "RMSE reduction 50 s", "100 s", "Runtime per decision [s]"]
+                      "RMSE reduction 50 s", "100 s", "Runtime per decision [ms]"]
     good, bad = lines[2], lines[3]
     assert good.startswith("| **Toy-v0** | `good` |") and bad.startswith("|  | `bad` |")
     good_cells = [c.strip() for c in good.strip("|").split("|")]
     bad_cells = [c.strip() for c in bad.strip("|").split("|")]
     assert good_cells[2] == "**66.0%** [65.0, 67.0]"  # mean of 65, 66, 67 and its interval
     assert all(c.startswith("**") for c in good_cells[2:6]) and not any("**" in c for c in bad_cells[2:6])
-    assert bad_cells[6].startswith("**0.00110**") and not good_cells[6].startswith("**")  # lowest runtime
+    assert bad_cells[6].startswith("**1.10**") and not good_cells[6].startswith("**")  # lowest runtime
 
 
 def test_equal_means_are_all_bold():

@@ -110,6 +110,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="few episodes and cheaper look-ahead settings: minutes on 2 cores")
     lb.add_argument("--env", metavar="KEY=VALUE", action="append", default=[],
                     help="override a config field of every task, e.g. --env budget_s=100 (repeatable)")
+    lb.add_argument("--rerun", metavar="SPEC", action="append", default=[],
+                    help="drop this planner's rows in --out and fly them again, keeping every other row (e.g. "
+                         "after retraining a checkpoint, whose rows the folder then refuses); repeatable; the "
+                         "folder records the command without it")
     lb.add_argument("--reference", default=None, metavar="SPEC",
                     help="planner the report compares every other one with, episode by episode (default greedy, "
                          "when it runs); it must be one of the run's planners")
@@ -279,6 +283,30 @@ def _reference(reference: str | None, planners: Sequence[str]) -> str | None:
     return reference.strip()
 
 
+def _one_of(spec: str, planners: Sequence[str], flag: str) -> str:
+    """The run's planner that ``spec`` names (its canonical spec, or its bare name when only one
+    spec of the run has that name)."""
+    from .eval.report import resolve_reference
+
+    found = resolve_reference(spec.strip(), planners) if spec.strip() else None
+    if found is None:
+        raise ValueError(f"{flag} {spec!r} names no planner of this run: valid are {list(planners)}")
+    return found
+
+
+def _without_option(argv: Sequence[str], flag: str) -> list[str]:
+    """``argv`` without ``flag VALUE`` and ``flag=VALUE``."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == flag:
+            skip = True
+        elif not a.startswith(flag + "="):
+            out.append(a)
+    return out
+
+
 class _SigtermAsInterrupt:
     """SIGTERM handler: stop like Ctrl-C (KeyboardInterrupt), remembering that it was SIGTERM."""
 
@@ -309,6 +337,7 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
         plan = make_plan(args.tasks, specs, args.episodes,
                          args.seed, args.quick, parse_overrides(args.env), log=lambda m: print(m, flush=True))
         reference = _reference(args.reference, plan.planners)
+        rerun = [_one_of(spec, plan.planners, "--rerun") for spec in args.rerun]
         backend = args.backend or ("ray" if args.address else default_backend(args.workers))
         check_executor_args(backend, args.workers, args.address)  # e.g. the ray extra, before anything runs
     except (ValueError, ImportError) as err:
@@ -316,13 +345,13 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     print(f"tasks: {', '.join(plan.tasks)}\nplanners: {', '.join(plan.planners)}\n"
           f"episodes: {plan.episodes} per task and planner, seed {plan.seed}"
           + (f", env overrides {plan.env_overrides}" if plan.env_overrides else ""), flush=True)
-    command = "ipp-bench " + " ".join(shlex.quote(a) for a in argv)
+    command = "ipp-bench " + " ".join(shlex.quote(a) for a in _without_option(argv, "--rerun"))
     sigterm = _SigtermAsInterrupt()
     previous = signal.signal(signal.SIGTERM, sigterm)  # SIGTERM stops like Ctrl-C
     try:
         summary = run_leaderboard(plan, args.out, backend=backend, workers=args.workers, address=args.address,
                                   progress=args.progress, command=command, reference=reference,
-                                  log=lambda m: print(m, flush=True))
+                                  log=lambda m: print(m, flush=True), rerun=rerun)
     except Interrupted as err:
         print(f"ipp-bench: {err}", file=sys.stderr)
         return EXIT_TERMINATED if sigterm.received else EXIT_INTERRUPTED

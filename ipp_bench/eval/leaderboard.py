@@ -16,7 +16,7 @@ from __future__ import annotations
 import sys
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -137,7 +137,7 @@ class _Progress:
 def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None, workers: int | None = None,
                     address: str | None = None, progress: bool | None = None, command: str | None = None,
                     report: bool = True, reference: str | None = "greedy",
-                    log: Callable[[str], None] = print) -> Summary:
+                    log: Callable[[str], None] = print, rerun: Sequence[str] = ()) -> Summary:
     """Run the episodes of ``plan`` that ``out_dir`` lacks, then write the report.
 
     Args:
@@ -151,6 +151,9 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
         command: the command line, recorded in run.json and the report.
         report: write leaderboard.md and the plots at the end.
         reference: the planner every other one is compared with, episode by episode, in the report.
+        rerun: planners of ``plan`` whose rows in ``out_dir`` are dropped and flown again (a
+            retrained checkpoint's, say): the folder then holds what ``command`` gives today, with
+            every other row kept.
 
     Raises:
         ResultsMismatchError: ``out_dir`` holds results of other arguments, is locked or unwritable.
@@ -163,7 +166,7 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
     t0 = time.perf_counter()
     if backend is None:
         backend = default_backend(workers)
-    with ResultsStore(out_dir, plan, command) as store:
+    with ResultsStore(out_dir, plan, command, rerun) as store:
         for note in store.notes:
             log(f"note: {note}")
         jobs = plan.jobs()

@@ -29,7 +29,7 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -126,10 +126,15 @@ class ResultsStore:
     reads it; :meth:`begin` writes run.json and the cleaned results.csv.
     """
 
-    def __init__(self, out_dir: str | Path, plan: Plan, command: str | None = None):
+    def __init__(self, out_dir: str | Path, plan: Plan, command: str | None = None, rerun: Sequence[str] = ()):
         self.dir = Path(out_dir)
         self.plan = plan
         self.command = command
+        unknown = [p for p in rerun if p not in plan.planners]
+        if unknown:
+            raise ValueError(f"--rerun {', '.join(unknown)}: not a planner of this run ({', '.join(plan.planners)})")
+        #: planners whose rows are dropped and flown again (e.g. a retrained checkpoint's)
+        self.rerun = tuple(rerun)
         self.csv_path = self.dir / RESULTS_CSV
         self.run_json = self.dir / RUN_JSON
         self._lock_fd: int | None = None
@@ -228,6 +233,14 @@ class ResultsStore:
             self._refuse_unfingerprinted_rows(fingerprint.get("planner_fingerprints") or {})
         for k in added:
             stored[k] = fingerprint[k]
+        if self.rerun:  # their rows go (see _load): what they were made with no longer matters
+            pf = dict(stored.get("planner_fingerprints") or {})
+            now = fingerprint.get("planner_fingerprints") or {}
+            for p in self.rerun:
+                pf.pop(p, None)
+                if p in now:
+                    pf[p] = now[p]
+            stored["planner_fingerprints"] = pf
         differences = fingerprint_differences(stored, fingerprint)
         if differences:
             lines = [f"  {k}: {line}" for k, ls in differences.items() for line in ls]
@@ -247,7 +260,7 @@ class ResultsStore:
         rerecord = stored != fingerprint
         if rerecord and not added:
             self.notes.append(f"{RUN_JSON} records the same arguments in an older form; rewrote it in today's")
-        if (added or rerecord or self.plan.episodes != stored_episodes
+        if (added or rerecord or self.rerun or self.plan.episodes != stored_episodes
                 or "episodes" in stored_meta.get("fingerprint", {})):
             if self.plan.episodes != stored_episodes:
                 self.notes.append(f"extending {self.dir} from {stored_episodes} to {self.plan.episodes} episodes "
@@ -288,7 +301,11 @@ class ResultsStore:
             key = (row["task"], row["planner"], row["seed"])
             groups.setdefault(key, {}).setdefault(row["time_s"], row)  # a duplicate row: keep the first
         done = {}
+        dropped: dict[str, int] = {}
         for key, by_time in groups.items():
+            if key[1] in self.rerun:
+                dropped[key[1]] = dropped.get(key[1], 0) + 1
+                continue
             if key not in wanted:
                 notes.append(f"dropped rows of {key}: not an episode of these arguments")
                 continue
@@ -297,6 +314,7 @@ class ResultsStore:
                              "it runs again")
                 continue
             done[key] = [by_time[t] for t in expected[key[0]]]
+        notes += [f"dropped {n} episodes of {p} (--rerun): they run again" for p, n in dropped.items()]
         kept = sum(len(v) for v in done.values())
         if kept != len(rows) or not text.endswith("\n") or notes:
             self._rewrite_rows = [r for v in done.values() for r in v]

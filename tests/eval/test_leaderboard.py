@@ -316,3 +316,51 @@ def test_a_failing_episode_in_a_worker_process_is_one_line_too(tmp_path):
     ckpt.unlink()
     with pytest.raises(lb.EpisodeFailed, match=r"episode Grid15Eval-v1 attention:checkpoint=\S+ seed \d+ failed: \w+"):
         run_tiny(tmp_path / "lb", plan, backend="process", workers=2)
+
+
+def test_rerun_refreshes_one_planners_rows_after_its_checkpoint_changed(tmp_path):
+    """A retrained checkpoint: the folder refuses its planner's old rows; ``rerun`` drops and flies
+    them again, every other row stays byte for byte, and the plain command is then complete."""
+    torch = pytest.importorskip("torch")
+    from ipp_bench.policies.checkpoint import save_checkpoint
+    from ipp_bench.policies.network import AttentionNet, NetConfig
+
+    ckpt = tmp_path / "net.pt"
+
+    def write_net(seed):
+        torch.manual_seed(seed)
+        save_checkpoint(AttentionNet(NetConfig(embed_dim=16, n_heads=2, ff_dim=32)), ckpt)
+
+    write_net(0)
+    spec = f"attention:checkpoint={ckpt}"
+    out = tmp_path / "lb"
+    plan = lambda: tiny_plan(tasks=TASKS[:1], planners=("random", spec))
+    run_tiny(out, plan(), command="ipp-bench leaderboard (the recorded command)")
+    before = results(out)
+    write_net(1)  # retrained: another network behind the same path
+    with pytest.raises(ResultsMismatchError, match="planner_fingerprints"):
+        run_tiny(out, plan())
+    with pytest.raises(ValueError, match="--rerun greedy: not a planner of this run"):
+        run_tiny(out, plan(), rerun=("greedy",))
+    summary = run_tiny(out, plan(), rerun=(spec,), command="ipp-bench leaderboard (the recorded command)")
+    assert summary.ran == EPISODES
+    after = results(out)
+    keep = lambda rows, p: [r for r in without_timing(rows) if r["planner"] == p]
+    assert keep(after, "random") == keep(before, "random")
+    assert keep(after, spec) != keep(before, spec) and len(keep(after, spec)) == len(keep(before, spec))
+    meta = json.loads((out / "run.json").read_text())
+    assert meta["command"] == "ipp-bench leaderboard (the recorded command)"
+    assert run_tiny(out, plan()).ran == 0  # the folder now holds what its command gives
+
+
+def test_the_recorded_command_leaves_rerun_out_and_a_bad_rerun_is_one_line(tmp_path, capsys):
+    from ipp_bench.cli import _without_option, main
+
+    argv = ["leaderboard", "--rerun", "attention", "--out", "x", "--rerun=greedy", "--quick"]
+    assert _without_option(argv, "--rerun") == ["leaderboard", "--out", "x", "--quick"]
+    out = tmp_path / "lb"
+    assert main(["leaderboard", "--tasks", TASKS[0], "--planners", "random", "--episodes", "1",
+                 "--rerun", "greedy", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["ipp-bench: error: --rerun 'greedy' names no planner of this run: valid are ['random']"]
+    assert not out.exists()

@@ -12,12 +12,24 @@ same episodes:
   greedy on gain rather than gain per second.
 - ``global`` (``benchmarks/bench_saturation.py``): the node anywhere with the best one-look gain per
   second of shortest-path flight, reached hop by hop.
+- ``far``: greedy plus far targets, the ``oracle`` reference's move set scored on the belief's ROI
+  (no truth): besides the neighbours' legs, one look at any roadmap node, scored by its exact ROI
+  trace reduction per second of the quickest roadmap flight to it; when the best target beats every
+  leg, fly the first leg towards it. ``far:top=16`` computes the exact look gain only for the 16
+  targets the look-gain feature ranks best per second: the attention policy's skip teacher
+  (``ipp_bench.planners.far.far_scores``); ``top=0`` for every node (12x the cost on 30 x 30).
+- ``farcheap``: per neighbour, the best look-gain feature (the marginal-variance approximation) per
+  second of flight through it, against greedy's exact leg score (``exact_near=false``: the feature
+  for the neighbours too); cheaper, and measured worse than greedy (RESULTS, "Attention policy at
+  the frontier").
 
-Both predict with the belief covariance alone (the ROI of the decision held fixed), as greedy and
-MCTS do; neither touches the truth.
+All predict with the belief covariance alone (the ROI of the decision held fixed), as greedy and
+MCTS do; none touches the truth.
 
     python benchmarks/bench_teachers.py --task ipp_bench/Grid30Train-v1 --episodes 20 --workers 16 \
         --planners greedy rollout:horizon_s=30 rollout:horizon_s=60
+    python benchmarks/bench_teachers.py --task ipp_bench/Hotspots30Train-v2 --episodes 8 --workers 2 \
+        --planners greedy far far:top=16
 
 Seeds are 10,000,000 + i. Prints the mean ROI uncertainty reduction at the report times, the
 paired difference to greedy with a 95% bootstrap interval, and the wall time per decision.
@@ -36,7 +48,8 @@ import numpy as np
 
 from ipp_bench.eval.runner import make_env, run_episode
 from ipp_bench.planners import register
-from ipp_bench.planners.greedy import GreedyPlanner
+from ipp_bench.planners.far import FarTargets, duration_graph, far_move, far_scores
+from ipp_bench.planners.greedy import GreedyPlanner, greedy_scores
 from ipp_bench.planners.mcts import MCTSConfig, MCTSPlanner, _State
 from ipp_bench.policies.features import LookGain
 
@@ -100,11 +113,70 @@ class LookRate(GreedyPlanner):
         return np.where(obs["action_mask"].astype(bool), s, -np.inf)
 
 
+@dataclass(frozen=True)
+class FarConfig:
+    """The oracle's rule (neighbour legs and far one-look targets) on the belief's ROI."""
+
+    top: int = 0  # [-] exact look gains only for the best ``top`` targets by the look-gain feature (0: all)
+
+
+class FarGreedy(GreedyPlanner):
+    """Greedy plus far targets: the oracle's move set, scored on the belief ROI (no truth)."""
+
+    name = "far"
+    Config = FarConfig
+
+    def reset(self, view, seed: int) -> None:
+        super().reset(view, seed)
+        if not self.settings.top:
+            ft = FarTargets.of(view)  # a look at every node, exact
+            self._targets, self._looks = ft.targets, ft.looks
+
+    def act(self, obs):
+        if self.settings.top:  # the attention policy's skip teacher
+            return int(np.argmax(far_scores(self.view, obs, self.settings.top)))
+        return far_move(self.view, obs, self.scores(obs), self._targets,
+                        lambda: self._looks.trace_reductions(self.view.belief.cov, self.view.belief_roi()))
+
+
+@dataclass(frozen=True)
+class FarCheapConfig:
+    exact_near: bool = True  # greedy's exact leg scores for the neighbours (else the look gain as well)
+
+
+class FarCheap(GreedyPlanner):
+    """Per neighbour nb: max(leg score, max_j g_j / (t(cur -> nb) + D[nb, j])), g the look-gain feature
+    (marginal variances), D all-pairs quickest roadmap flight times (built once per roadmap)."""
+
+    name = "farcheap"
+    Config = FarCheapConfig
+
+    def reset(self, view, seed: int) -> None:
+        super().reset(view, seed)
+        from scipy.sparse.csgraph import shortest_path
+
+        self._D = shortest_path(duration_graph(view), method="D", directed=True)
+
+    def act(self, obs):
+        view = self.view
+        cur = int(obs["current_node"][0])
+        nb = view.roadmap.neighbours[cur]
+        dur = view.neighbour_durations(cur, view.position)
+        g = LookGain.of(view)(view.belief.variance, view.belief_roi())
+        t = dur[:, None] + self._D[nb]  # (k, n)
+        far = np.where(view.fits_budget(t, view.remaining_s), g[None, :] / t, 0.0).max(axis=1)
+        near = greedy_scores(view, cur) if self.settings.exact_near else g[nb] / dur
+        s = np.maximum(near, far)
+        return int(np.argmax(np.where(obs["action_mask"].astype(bool), s, -np.inf)))
+
+
 def _episode(job):
     task, spec, seed = job
     register("rollout", f"{__name__}:RolloutGreedy")
     register("global", "bench_saturation:GlobalGreedy")
     register("lookrate", f"{__name__}:LookRate")
+    register("far", f"{__name__}:FarGreedy")
+    register("farcheap", f"{__name__}:FarCheap")
     res = run_episode(task, spec, seed, env=make_env(task))
     return spec, seed, [r["uncertainty_reduction_pct"] for r in res.report], res.decision_time_mean_s
 

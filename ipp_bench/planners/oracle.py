@@ -22,9 +22,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
 
+from .far import far_move
 from .greedy import GreedyPlanner
 
 
@@ -83,11 +82,6 @@ class OraclePlanner(GreedyPlanner):
 
     def reset(self, view, seed: int) -> None:
         super().reset(view, seed)
-        rm = view.roadmap
-        n, k = rm.neighbours.shape
-        # the roadmap's legs by the mission's clock: what the quickest path to a target costs
-        durations = np.concatenate([view.neighbour_durations(i) for i in range(n)])
-        self._graph = csr_matrix((durations, (np.repeat(np.arange(n), k), rm.neighbours.ravel())), shape=(n, n))
         self._set_targets(view.true_roi())
 
     def _set_targets(self, roi: np.ndarray) -> None:
@@ -111,23 +105,7 @@ class OraclePlanner(GreedyPlanner):
         if not np.array_equal(roi, self._roi):  # the view's episode changed under the planner
             self._set_targets(roi)
         scores = self.scores(obs)
-        best = int(np.argmax(scores))
         if self._looks is None:
-            return best
-        view = self.view
-        cur = int(obs["current_node"][0])
-        t, pred = dijkstra(self._graph, indices=cur, return_predecessors=True)
-        t = t[self._targets]
-        ok = (t > 0) & np.isfinite(t) & view.fits_budget(t, view.remaining_s)
-        if not ok.any():
-            return best
-        gains = self._looks.trace_reductions(view.belief.cov, self._roi)
-        far = np.where(ok, gains / np.where(ok, t, 1.0), -np.inf)
-        j = int(np.argmax(far))
-        if not far[j] > scores[best]:
-            return best
-        hop = int(self._targets[j])
-        while pred[hop] != cur:
-            hop = int(pred[hop])
-        action = int(np.flatnonzero(view.roadmap.neighbours[cur] == hop)[0])
-        return action if obs["action_mask"][action] else best
+            return int(np.argmax(scores))
+        return far_move(self.view, obs, scores, self._targets,
+                        lambda: self._looks.trace_reductions(self.view.belief.cov, self._roi))

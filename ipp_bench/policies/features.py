@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
+from .network import SKIP_TEACHERS  # the teachers of NetConfig.skip_teacher
+
 BASE_NODE_DIM = 5  # the GraphIPPEnv node features
 GAIN_NODE_DIM = BASE_NODE_DIM + 1
 RATE_NODE_DIM = GAIN_NODE_DIM + 1  # and greedy's own score of the neighbours (see add_rate_feature)
@@ -107,19 +109,65 @@ def add_gain_feature(obs: dict[str, np.ndarray], source: Any) -> dict[str, np.nd
     return out
 
 
-def neighbour_rates(view: Any, obs: dict[str, np.ndarray]) -> np.ndarray:
-    """(k,) greedy's score of each neighbour (exact predicted ROI trace reduction of the leg per
-    second of flight), divided by the best allowed one: 1 marks greedy's choice, whatever the map's
-    size. Masked neighbours and a state where nothing gains give 0."""
+INVARIANT_LENGTH_M = 25.0  # [m] the unit of the invariant inputs' relative x, y (10 cells of 2.5 m)
+
+
+def invariant_features(obs: dict[str, np.ndarray], source: Any) -> dict[str, np.ndarray]:
+    """``obs`` with node features that mean the same on every map size and task family: (N, 5) -> (N, 6).
+
+    - x, y: metres from the current node over :data:`INVARIANT_LENGTH_M` (the env's are min-max
+      normalised over the roadmap, so one unit is 37.5 m on 15 x 15 and 75 m on 30 x 30);
+    - z: the env's (the altitude levels are the same on every task);
+    - mean: (footprint mean - mu_th) / sigma_0 and std: footprint std / sigma_0, with sigma_0 the
+      prior's standard deviation (the env's are in field units: v1 and v2 priors differ 3x);
+    - look gain: the ROI trace reduction of one look from the node over the mean ROI cell variance
+      (how many ROI cells' worth of variance it removes), over 10 (the v1 feature divides by the whole
+      map's ROI trace, which grows with the map).
+
+    Args:
+        obs: a GraphIPPEnv observation.
+        source: the planner's :class:`~ipp_bench.planners.base.RobotView`, or the env itself.
+    """
+    if hasattr(source, "belief_roi"):
+        variance, roi = source.belief.variance, source.belief_roi()
+    else:
+        source = source.unwrapped
+        variance, roi = source.mission.belief.variance, source.mission.belief_roi()
+    cfg = source.config
+    sigma0 = float(np.sqrt(cfg.gp.signal_variance + cfg.gp.nugget))
+    pos = source.roadmap.positions
+    cur = int(np.asarray(obs["current_node"]).reshape(-1)[0])
+    f = np.asarray(obs["node_features"], dtype=np.float32)
+    out = np.empty((f.shape[0], BASE_NODE_DIM + 1), dtype=np.float32)
+    out[:, :2] = (pos[:, :2] - pos[cur, :2]) / INVARIANT_LENGTH_M
+    out[:, 2] = f[:, 2]
+    out[:, 3] = (f[:, 3] - cfg.mission.mu_th) / sigma0
+    out[:, 4] = f[:, 4] / sigma0
+    out[:, 5] = LookGain.of(source)(variance, roi) * (np.count_nonzero(roi) / 100.0)
+    return dict(obs) | {"node_features": out}
+
+
+def neighbour_rates(view: Any, obs: dict[str, np.ndarray], teacher: str = "greedy") -> np.ndarray:
+    """(k,) the teacher's score of each neighbour, divided by the best allowed one: 1 marks the
+    teacher's choice, whatever the map's size. ``greedy``: greedy's score (exact predicted ROI trace
+    reduction of the leg per second of flight); ``far``: :func:`far_scores`. Masked neighbours and a
+    state where nothing gains give 0."""
     from ..planners.greedy import greedy_scores
 
+    if teacher not in SKIP_TEACHERS:
+        raise ValueError(f"skip teacher {teacher!r} is invalid: expected one of {', '.join(SKIP_TEACHERS)}")
     mask = np.asarray(obs["action_mask"]).astype(bool).reshape(-1)
-    rates = np.where(mask, greedy_scores(view, int(obs["current_node"][0])), 0.0)
+    if teacher == "far":
+        from ..planners.far import far_scores
+
+        rates = np.where(mask, far_scores(view, obs), 0.0)
+    else:
+        rates = np.where(mask, greedy_scores(view, int(obs["current_node"][0])), 0.0)
     best = rates.max() if mask.any() else 0.0
     return (rates / best if best > 0 else np.zeros_like(rates)).astype(np.float32)
 
 
-def add_rate_feature(obs: dict[str, np.ndarray], view: Any) -> dict[str, np.ndarray]:
+def add_rate_feature(obs: dict[str, np.ndarray], view: Any, teacher: str = "greedy") -> dict[str, np.ndarray]:
     """``obs`` with the look-gain column and greedy's normalised score appended: (N, 5) -> (N, 7).
 
     The seventh column holds :func:`neighbour_rates` on the rows of the current node's neighbours and
@@ -130,6 +178,7 @@ def add_rate_feature(obs: dict[str, np.ndarray], view: Any) -> dict[str, np.ndar
     Args:
         obs: a GraphIPPEnv observation.
         view: the planner's :class:`~ipp_bench.planners.base.RobotView` (an env is wrapped in one).
+        teacher: whose score: ``greedy`` or ``far`` (:func:`neighbour_rates`).
     """
     if not hasattr(view, "belief_roi"):
         from ..planners.base import RobotView
@@ -137,26 +186,30 @@ def add_rate_feature(obs: dict[str, np.ndarray], view: Any) -> dict[str, np.ndar
         view = RobotView(view.unwrapped)
     out = add_gain_feature(obs, view)
     column = np.zeros((out["node_features"].shape[0], 1), dtype=np.float32)
-    column[np.asarray(obs["neighbours"], dtype=np.int64).reshape(-1), 0] = neighbour_rates(view, obs)
+    column[np.asarray(obs["neighbours"], dtype=np.int64).reshape(-1), 0] = neighbour_rates(view, obs, teacher)
     out["node_features"] = np.concatenate([out["node_features"], column], axis=1)
     return out
 
 
-def extend_observation(obs: dict[str, np.ndarray], view: Any, node_dim: int) -> dict[str, np.ndarray]:
+def extend_observation(obs: dict[str, np.ndarray], view: Any, node_dim: int,
+                       teacher: str = "greedy", invariant: bool = False) -> dict[str, np.ndarray]:
     """``obs`` with the node features a network of ``node_dim`` was trained with (6: the look gain,
-    7: and greedy's normalised score); unchanged if it has them or if no extension fits (the
-    network's input check then names both sizes)."""
+    7: and greedy's normalised score; ``invariant``: :func:`invariant_features`); unchanged if it has
+    them or if no extension fits (the network's input check then names both sizes)."""
     have = np.shape(obs["node_features"])[-1]
+    if invariant and have == BASE_NODE_DIM and node_dim == GAIN_NODE_DIM:
+        return invariant_features(obs, view)
     if have == BASE_NODE_DIM and node_dim == GAIN_NODE_DIM:
         return add_gain_feature(obs, view)
     if have == BASE_NODE_DIM and node_dim == RATE_NODE_DIM:
-        return add_rate_feature(obs, view)
+        return add_rate_feature(obs, view, teacher)
     return obs
 
 
-def gain_feature_wrapper(env: Any, rate: bool = False) -> Any:
+def gain_feature_wrapper(env: Any, rate: bool = False, teacher: str = "greedy", invariant: bool = False) -> Any:
     """``env`` (a GraphIPPEnv, possibly wrapped) whose observation carries the look-gain feature
-    (and with ``rate`` greedy's normalised score, :func:`add_rate_feature`)."""
+    (and with ``rate`` the ``teacher``'s normalised score, :func:`add_rate_feature`; with
+    ``invariant`` the inputs of :func:`invariant_features` instead)."""
     import gymnasium as gym
     from gymnasium import spaces
 
@@ -172,13 +225,15 @@ def gain_feature_wrapper(env: Any, rate: bool = False) -> Any:
             self._view = None
 
         def observation(self, observation: dict) -> dict:
+            if invariant:
+                return invariant_features(observation, self.env.unwrapped)
             if not rate:
                 return add_gain_feature(observation, self.env.unwrapped)
             if self._view is None:
                 from ..planners.base import RobotView
 
                 self._view = RobotView(self.env.unwrapped)
-            return add_rate_feature(observation, self._view)
+            return add_rate_feature(observation, self._view, teacher)
 
         def action_masks(self) -> np.ndarray:
             return self.env.unwrapped.action_masks()

@@ -53,6 +53,9 @@ import torch.nn.functional as F
 from torch import nn
 
 NEG_INF = float("-inf")
+#: the planners whose score a ``rate_skip`` network's rate feature can hold
+#: (:func:`ipp_bench.policies.features.neighbour_rates`)
+SKIP_TEACHERS = ("greedy", "far")
 MASKED_LOGIT = -1e8  # finite stand-in for -inf where SB3 needs finite logits (as MaskableCategorical)
 
 
@@ -68,6 +71,8 @@ class NetConfig:
     tanh_clip: float = 10.0  # [-] C in C tanh(u) of the pointer logits
     rate_skip: bool = False  # add alpha x (the last node feature of each neighbour) to its logit
     rate_skip_init: float = 20.0  # [-] alpha at start (20: a neighbour at 0.9 x the best rate is 7x less likely)
+    skip_teacher: str = "greedy"  # whose score the rate feature holds: greedy's, or far (greedy with far targets)
+    invariant: bool = False  # node features that mean the same on every map (features.invariant_features)
 
     def __post_init__(self) -> None:
         for name in ("node_dim", "pe_dim", "embed_dim", "n_heads", "ff_dim"):
@@ -84,6 +89,14 @@ class NetConfig:
         if self.rate_skip and self.node_dim < 2:
             raise ValueError(f"NetConfig.rate_skip needs the rate as an extra node feature: node_dim = "
                              f"{self.node_dim} is invalid, expected >= 2")
+        if not isinstance(self.invariant, bool):
+            raise ValueError(f"NetConfig.invariant = {self.invariant!r} is invalid: expected true or false")
+        if self.invariant and (self.rate_skip or self.node_dim != 6):
+            raise ValueError(f"NetConfig.invariant needs node_dim = 6 without rate_skip (x, y, z, mean, std, look "
+                             f"gain): node_dim = {self.node_dim}, rate_skip = {self.rate_skip}")
+        if self.skip_teacher not in SKIP_TEACHERS:
+            raise ValueError(f"NetConfig.skip_teacher = {self.skip_teacher!r} is invalid: expected one of "
+                             f"{', '.join(SKIP_TEACHERS)}")
         if not (math.isfinite(self.rate_skip_init) and self.rate_skip_init > 0):
             raise ValueError(f"NetConfig.rate_skip_init = {self.rate_skip_init!r} is invalid: expected a number > 0")
         if not self.tanh_clip > 0:

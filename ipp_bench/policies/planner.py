@@ -143,7 +143,8 @@ class AttentionPlanner(GraphPlanner):
         if self.net.cfg.node_dim != np.shape(obs["node_features"])[-1]:
             from .features import extend_observation  # trained with the look-gain (and rate) features
 
-            obs = extend_observation(obs, self.view, self.net.cfg.node_dim)
+            obs = extend_observation(obs, self.view, self.net.cfg.node_dim, self.net.cfg.skip_teacher,
+                                     self.net.cfg.invariant)
         self._check(obs)
         torch = self._torch
         mask = np.asarray(obs["action_mask"]).astype(bool).reshape(-1)

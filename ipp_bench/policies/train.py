@@ -58,6 +58,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shlex
 import signal
 import sys
@@ -71,11 +72,12 @@ import numpy as np
 import torch
 
 from ipp_bench._threads import available_cpus, keep_freed_memory
+from ipp_bench.config import check_integer, check_number
 from ipp_bench.envs.registry import parse_overrides
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, RATE_NODE_DIM, gain_feature_wrapper
+from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, RATE_NODE_DIM, SKIP_TEACHERS, gain_feature_wrapper
 from ipp_bench.policies.network import AttentionNet, NetConfig
-from ipp_bench.policies.vec import VEC_ENVS
+from ipp_bench.policies.vec import REWARDS, VEC_ENVS
 from ipp_bench.policies.warmstart import check_expert, warm_start
 
 VAL_SEED0 = 10_000_000  # validation episodes use seeds VAL_SEED0 + i of the validation task
@@ -101,7 +103,11 @@ class TrainArgs:
     help from the metadata; a ``bool`` field that defaults to True becomes ``--no-<name>``.
     """
 
-    task: str = opt("ipp_bench/Grid15-v0", "gymnasium task id to train on")
+    task: str = opt("ipp_bench/Grid15Train-v1", "gymnasium task id to train on (a training task: its seeds are "
+                                                "disjoint from the leaderboard's)")
+    mix: list[str] = opt([], "another task to train on, on the same roadmap as --task (e.g. the v2 task of the "
+                             "map size; repeatable): environment i trains on [task, *mix][i %% n]; validated on each",
+                         metavar="TASK")
     env: list[str] = opt([], "override a field of the task config for training, e.g. --env budget_s=200 "
                              "(repeatable; values are read as JSON where they parse)", metavar="KEY=VALUE")
     total_steps: int = opt(200_000, "PPO environment steps (the warm start comes on top)")
@@ -118,6 +124,10 @@ class TrainArgs:
     n_epochs: int = opt(1, "epochs per rollout (paper: eight; each epoch costs as much as all the rest of a step)", PPO)
     learning_rate: float = opt(1e-5, "Adam learning rate (paper)", PPO)
     gamma: float = opt(0.99, "discount (paper)", PPO)
+    reward: str = opt("paper", "paper: the env's (the step's belief-ROI trace reduction relative to the trace "
+                               "before it, paper eq. 9); metric: the change of the leaderboard's metric (mean ROI "
+                               "uncertainty reduction over the report times, policies.vec.MetricReward)", PPO,
+                      choices=REWARDS)
     gae_lambda: float = opt(0.0, "GAE lambda (0 = the paper's one-step TD advantage)", PPO)
     clip_range: float = opt(0.2, "PPO clip", PPO)
     ent_coef: float = opt(0.0, "entropy bonus", PPO)
@@ -130,10 +140,16 @@ class TrainArgs:
     ff_dim: int = opt(512, "feed-forward width (CAtNIPP / paper)", NET)
     gain_feature: bool = opt(False, "add the look-gain node feature (ipp_bench.policies.features): the predicted "
                                     "ROI trace reduction of one look from every node", NET)
+    invariant: bool = opt(False, "node features that mean the same on every map size and task family (relative "
+                                 "metric x, y, mean and std over the prior's, look gain over the mean ROI cell "
+                                 "variance: features.invariant_features; implies the look-gain feature)", NET)
     rate_skip: bool = opt(False, "also add greedy's score of each neighbour over the best one as a node feature "
                                  "and to the pointer logits times a learned weight (the network starts as a "
                                  "softened greedy; implies --gain-feature)", NET)
     rate_skip_init: float = opt(20.0, "the weight alpha of greedy's score at initialisation (with --rate-skip)", NET)
+    skip_teacher: str = opt("greedy", "whose score --rate-skip adds: greedy's, or far (greedy's legs and the best "
+                                      "far target on the belief's ROI, planners.far.far_scores)", NET,
+                            choices=SKIP_TEACHERS)
     init: str = opt("", "start from the weights of this exported checkpoint (.pt, e.g. an earlier run's "
                         "warmstart/bc.pt): the warm start fine-tunes them, or PPO starts from them", NET)
     warm_start: str = opt("none", "roadmap planner to imitate before PPO, e.g. greedy; 'none' to skip", WARM)
@@ -154,10 +170,18 @@ class TrainArgs:
     def net_config(self) -> NetConfig:
         if self.rate_skip:
             return NetConfig(node_dim=RATE_NODE_DIM, rate_skip=True, rate_skip_init=self.rate_skip_init,
-                             embed_dim=self.embed_dim,
+                             skip_teacher=self.skip_teacher, embed_dim=self.embed_dim,
+                             n_heads=self.n_heads, ff_dim=self.ff_dim)
+        if self.invariant:
+            return NetConfig(node_dim=GAIN_NODE_DIM, invariant=True, embed_dim=self.embed_dim,
                              n_heads=self.n_heads, ff_dim=self.ff_dim)
         return NetConfig(node_dim=GAIN_NODE_DIM if self.gain_feature else BASE_NODE_DIM,
                          embed_dim=self.embed_dim, n_heads=self.n_heads, ff_dim=self.ff_dim)
+
+    @property
+    def tasks(self) -> list[str]:
+        """The training tasks: ``task`` and ``mix``, in environment order."""
+        return [self.task, *self.mix]
 
 
 # Options that may change when resuming a run; all others must match the saved config.
@@ -222,22 +246,84 @@ def command_line(cfg: TrainArgs) -> str:
     return shlex.join(parts)
 
 
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+# The bounds of every numeric option (the run refuses anything else before its folder is made).
+_MAX_STEPS = 10**10
+_INTEGER_RANGES: dict[str, tuple[int, int | None]] = {
+    "total_steps": (1, _MAX_STEPS), "n_envs": (1, 256), "n_steps": (1, 100_000), "batch_size": (1, 1_000_000),
+    "n_epochs": (1, 1000), "eval_episodes": (1, 100_000), "checkpoint_every": (1, None), "eval_every": (1, None),
+    "embed_dim": (1, 4096), "n_heads": (1, 256), "ff_dim": (1, 65536), "seed": (0, 2**32 - 1),
+    "bc_episodes": (0, 1_000_000), "bc_rounds": (0, 1000), "bc_round_episodes": (0, 1_000_000),
+    "bc_epochs": (0, 10_000), "threads": (0, 1024),
+}
+_NUMBER_RANGES: dict[str, tuple[float | None, float | None, bool, bool]] = {  # low, high, open below, open above
+    "learning_rate": (0, 1, True, True), "bc_lr": (0, 1, True, True), "gamma": (0, 1, False, False),
+    "gae_lambda": (0, 1, False, False), "clip_range": (0, None, True, False), "ent_coef": (0, None, False, False),
+    "vf_coef": (0, None, False, False), "max_grad_norm": (0, None, True, False),
+    "target_kl": (0, None, False, False), "bc_temperature": (0, None, False, False),
+    "rate_skip_init": (0, None, True, False),
+}
+
+
+def _check_out(run: Path) -> None:
+    """``--out`` must be a folder this process can make and write in (one line, before any work)."""
+    if run.exists() and not run.is_dir():
+        raise ValueError(f"--out {run} is a file, not a folder: choose another --out")
+    probe = run
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        raise ValueError(f"--out {run}: {probe} is a file, so the run folder cannot be made there")
+    if probe.exists() and not os.access(probe, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {run}: {probe} is not writable by this user")
+
+
+def _read_json(path: Path, what: str) -> dict:
+    """``path``'s JSON object, or one line naming the file and what is wrong with it."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ValueError(f"--resume: {path} is damaged ({' '.join(str(err).split())}); it holds the run's "
+                         f"{what}: restore it, or start a new --out") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"--resume: {path} is damaged (a JSON {type(data).__name__}, expected an object); it "
+                         f"holds the run's {what}: restore it, or start a new --out")
+    return data
+
+
+def _check_resume_files(run: Path) -> None:
+    """The files a resumed run reads, checked before it starts: ``state.json`` and ``latest.zip``."""
+    import zipfile
+
+    if (run / "state.json").is_file():
+        _read_json(run / "state.json", "progress (steps, best validation)")
+    latest = run / "checkpoints" / "latest.zip"
+    if latest.is_file():
+        try:
+            with zipfile.ZipFile(latest) as z:
+                bad = z.testzip()
+                names = set(z.namelist())
+        except (OSError, zipfile.BadZipFile) as err:
+            bad, names = str(err), set()
+        if bad is not None or not {"data", "policy.pth"} <= names:
+            numbered = sorted((run / "checkpoints").glob("step_*_steps.zip"))
+            hint = (f"replace it with a numbered checkpoint (newest: {numbered[-1].name})" if numbered
+                    else "remove it to restart PPO from its start")
+            raise ValueError(f"--resume: {latest} is corrupt (not a complete SB3 archive: "
+                             f"{bad or 'data or policy.pth missing'}); {hint}")
+
+
 def _check(cfg: TrainArgs) -> None:
     """Validate every option before anything is written (the run folder included)."""
-    positive = ("total_steps", "n_envs", "n_steps", "batch_size", "n_epochs", "eval_episodes",
-                "checkpoint_every", "eval_every", "embed_dim", "n_heads", "ff_dim")
-    for name in positive:
-        if getattr(cfg, name) < 1:
-            raise ValueError(f"--{name.replace('_', '-')} = {getattr(cfg, name)} is invalid: expected an integer >= 1")
-    for name in ("bc_episodes", "bc_rounds", "bc_round_episodes", "bc_epochs", "threads"):
-        if getattr(cfg, name) < 0:
-            raise ValueError(f"--{name.replace('_', '-')} = {getattr(cfg, name)} is invalid: expected an integer >= 0")
-    if cfg.bc_temperature < 0:
-        raise ValueError(f"--bc-temperature = {cfg.bc_temperature} is invalid: expected >= 0 (0 = one-hot targets)")
-    if not 0 < cfg.learning_rate < 1 or not 0 < cfg.bc_lr < 1:
-        raise ValueError("--learning-rate and --bc-lr must lie in (0, 1)")
-    if not 0 <= cfg.gamma <= 1 or not 0 <= cfg.gae_lambda <= 1:
-        raise ValueError("--gamma and --gae-lambda must lie in [0, 1]")
+    for name, (low, high) in _INTEGER_RANGES.items():
+        check_integer(_flag(name), getattr(cfg, name), low, high)
+    for name, (low, high, low_open, high_open) in _NUMBER_RANGES.items():
+        check_number(_flag(name), getattr(cfg, name), low, high, low_open=low_open, high_open=high_open)
     if cfg.vec_env not in VEC_ENVS:
         raise ValueError(f"--vec-env {cfg.vec_env!r} is invalid: expected one of {', '.join(VEC_ENVS)}")
     if cfg.device not in ("auto", "cpu") and not cfg.device.startswith("cuda"):
@@ -256,15 +342,33 @@ def _check(cfg: TrainArgs) -> None:
 
     import ipp_bench.envs  # noqa: F401 - registers the tasks
 
-    if cfg.task not in gym.registry:
-        valid = sorted(t for t in gym.registry if t.startswith("ipp_bench/"))
-        raise ValueError(f"--task {cfg.task!r} is not a registered task: valid are {valid}")
+    for flag, task in [("--task", cfg.task)] + [("--mix", t) for t in cfg.mix]:
+        if task not in gym.registry:
+            valid = sorted(t for t in gym.registry if t.startswith("ipp_bench/"))
+            raise ValueError(f"{flag} {task!r} is not a registered task: valid are {valid}")
+    if cfg.invariant and cfg.rate_skip:
+        raise ValueError("--invariant and --rate-skip cannot be combined: the rate feature is the last column of "
+                         "the v1 inputs")
+    if cfg.skip_teacher != "greedy" and not cfg.rate_skip:
+        raise ValueError(f"--skip-teacher {cfg.skip_teacher} needs --rate-skip (the score is the rate feature)")
+    if len(set(cfg.tasks)) != len(cfg.tasks):
+        raise ValueError(f"--mix {cfg.mix}: a task is named twice (with --task {cfg.task})")
     if cfg.val_task and cfg.val_task not in gym.registry:
         raise ValueError(f"--val-task {cfg.val_task!r} is not a registered task")
-    try:
-        make_train_env(cfg).close()  # a bad override fails now, with the config's message
-    except (ValueError, TypeError) as err:
-        raise ValueError(f"--task {cfg.task} with --env {cfg.env}: {err}") from None
+    roadmap = None
+    for i, task in enumerate(cfg.tasks):
+        try:
+            env = make_train_env(cfg, i)  # a bad override fails now, with the config's message
+        except (ValueError, TypeError) as err:
+            raise ValueError(f"--task {task} with --env {cfg.env}: {err}") from None
+        rm = env.unwrapped.roadmap
+        env.close()
+        if roadmap is None:
+            roadmap = rm
+        elif not (rm.positions.shape == roadmap.positions.shape and np.array_equal(rm.positions, roadmap.positions)
+                  and np.array_equal(rm.neighbours, roadmap.neighbours)):
+            raise ValueError(f"--mix {task}: its roadmap ({rm.n_nodes} nodes) is not --task {cfg.task}'s "
+                             f"({roadmap.n_nodes} nodes); one PPO run holds one roadmap: mix tasks of one map size")
 
 
 def load_init(cfg: TrainArgs, device: str | torch.device = "cpu") -> AttentionNet:
@@ -306,11 +410,18 @@ def make_env(task: str, **overrides: Any):
     return gym.make(task, **overrides)
 
 
-def make_train_env(cfg: TrainArgs):
-    """The training task with the run's ``--env`` overrides (and the look-gain feature if asked for)."""
-    env = make_env(cfg.task, **parse_overrides(cfg.env))
+def make_train_env(cfg: TrainArgs, index: int = 0):
+    """Environment ``index``'s training task (``cfg.tasks[index % n]``) with the run's ``--env``
+    overrides (and the look-gain, or rate, feature if asked for)."""
+    env = make_env(cfg.tasks[index % len(cfg.tasks)], **parse_overrides(cfg.env))
+    if cfg.reward == "metric":
+        from ipp_bench.policies.vec import MetricReward
+
+        env = MetricReward(env)
+    if cfg.invariant:
+        return gain_feature_wrapper(env, invariant=True)
     if cfg.rate_skip:
-        return gain_feature_wrapper(env, rate=True)
+        return gain_feature_wrapper(env, rate=True, teacher=cfg.skip_teacher)
     return gain_feature_wrapper(env) if cfg.gain_feature else env
 
 
@@ -332,6 +443,22 @@ def evaluate_net(net: AttentionNet, task: str, episodes: int, seed0: int = VAL_S
     net.eval()
     reports = [fly_episode(env, planner, seed0 + i).report for i in range(episodes)]
     net.train(was_training)
+    return _val_figures(reports)
+
+
+def evaluate_planner(spec: str, task: str, episodes: int, seed0: int = VAL_SEED0,
+                     overrides: dict[str, Any] | None = None) -> dict[str, float]:
+    """:func:`evaluate_net`'s figures for a registered planner (the validation's greedy reference)."""
+    from ipp_bench.planners import make_planner
+    from ipp_bench.planners.episode import fly_episode
+
+    env = make_env(task, **(overrides or {})).unwrapped
+    planner = make_planner(spec)
+    reports = [fly_episode(env, planner, seed0 + i).report for i in range(episodes)]
+    return _val_figures(reports)
+
+
+def _val_figures(reports: list) -> dict[str, float]:
     red_arr = np.asarray([[r["uncertainty_reduction_pct"] for r in rep] for rep in reports])
     out = {"val/score": float(red_arr.mean())}
     for j, row in enumerate(reports[0]):
@@ -339,17 +466,48 @@ def evaluate_net(net: AttentionNet, task: str, episodes: int, seed0: int = VAL_S
     return out
 
 
-def _validation(net: AttentionNet, cfg: TrainArgs) -> dict[str, float]:
+def _val_tasks(cfg: TrainArgs) -> list[tuple[str, dict[str, Any]]]:
     if cfg.val_task:
-        return evaluate_net(net, cfg.val_task, cfg.eval_episodes)
-    return evaluate_net(net, cfg.task, cfg.eval_episodes, overrides=parse_overrides(cfg.env))
+        return [(cfg.val_task, {})]
+    return [(t, parse_overrides(cfg.env)) for t in cfg.tasks]
+
+
+def _task_key(task: str) -> str:
+    return task.split("/")[-1]
+
+
+def _validation(net: AttentionNet, cfg: TrainArgs, greedy: dict[str, dict[str, float]] | None = None) -> dict[str, float]:
+    """The validation figures (``val/score``: their mean over the validation tasks); with several
+    tasks also per task (``val/<task>/...``), and with ``greedy`` (its figures per task on the same
+    seeds) the difference to greedy (``val/.../minus_greedy``)."""
+    tasks = _val_tasks(cfg)
+    out: dict[str, float] = {}
+    scores = []
+    for task, overrides in tasks:
+        val = evaluate_net(net, task, cfg.eval_episodes, overrides=overrides)
+        ref = (greedy or {}).get(task)
+        if ref is not None:
+            val["val/minus_greedy"] = val["val/score"] - ref["val/score"]
+        scores.append(val["val/score"])
+        if len(tasks) == 1:
+            out.update(val)
+        else:
+            out.update({f"val/{_task_key(task)}/{k.split('/', 1)[1]}": v for k, v in val.items()})
+    if len(tasks) > 1:
+        out["val/score"] = float(np.mean(scores))
+    return out
+
+
+def greedy_reference(cfg: TrainArgs) -> dict[str, dict[str, float]]:
+    """Greedy's validation figures on each validation task (the same seeds as the network's)."""
+    return {task: evaluate_planner("greedy", task, cfg.eval_episodes, overrides=ov) for task, ov in _val_tasks(cfg)}
 
 
 # ------------------------------------------------------------------------------------------------
 # PPO
 # ------------------------------------------------------------------------------------------------
 def _fmt(d: dict) -> str:
-    return ", ".join(f"{k.split('/')[-1]} {v:.2f}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items())
+    return ", ".join(f"{k.split('/', 1)[-1]} {v:.2f}" if isinstance(v, float) else f"{k} {v}" for k, v in d.items())
 
 
 def _logger(run: Path):
@@ -406,7 +564,9 @@ def _after_update_callback(cfg: TrainArgs, run: Path, state: dict, say: Callable
 
         def validate(self, n: int) -> None:
             net = self.model.policy.attention_net()
-            val = _validation(net, cfg)
+            if "greedy_val" not in state:
+                state["greedy_val"] = greedy_reference(cfg)
+            val = _validation(net, cfg, state["greedy_val"])
             self.model.policy.set_training_mode(False)
             for key, v in val.items():
                 self.logger.record(key, v)
@@ -444,12 +604,12 @@ def versions() -> dict[str, str]:
 
 
 def _meta(cfg: TrainArgs, state: dict, steps: int, val: dict) -> dict:
-    return {"task": cfg.task, "ppo_steps": steps, "warm_start": cfg.warm_start,
+    return {"task": cfg.task, "mix": list(cfg.mix), "ppo_steps": steps, "warm_start": cfg.warm_start,
             "command": command_line(cfg), "train_config": asdict(cfg) | {"out": ""},
             "seeds": {"seed": cfg.seed, "warm_start_episode_seeds": _warm_start_seeds(cfg),
                       "ppo_episode_seeds": "drawn by the environments' generators, seeded by --seed (SB3 set_random_seed)",
                       "validation_seeds": f"{VAL_SEED0}..{VAL_SEED0 + cfg.eval_episodes - 1} of "
-                                          f"{cfg.val_task or cfg.task}"},
+                                          f"{cfg.val_task or ', '.join(cfg.tasks)}"},
             "versions": versions(), "device": cfg.device, "threads": cfg.threads,
             "ppo_wall_s": round(state.get("ppo_wall_s", 0.0), 1),
             "warm_start_wall_s": round(state.get("bc_wall_s", 0.0), 1), **val}
@@ -460,6 +620,9 @@ def _warm_start_seeds(cfg: TrainArgs) -> str:
         return ""
     n = cfg.bc_episodes + cfg.bc_rounds * cfg.bc_round_episodes
     s0 = cfg.seed * 1_000_003
+    if cfg.mix:
+        return (f"{s0}..{s0 + n - 1}, each round's episodes split over {', '.join(cfg.tasks)} in turn "
+                "(consecutive seeds)")
     return f"{s0}..{s0 + n - 1} of {cfg.task}"
 
 
@@ -476,10 +639,10 @@ def _vec_env(cfg: TrainArgs):
 
     from ipp_bench.policies.vec import make_vec_env
 
-    def make():
-        return Monitor(make_train_env(cfg))
+    def maker(i: int):
+        return lambda: Monitor(make_train_env(cfg, i))
 
-    return make_vec_env(make, cfg.n_envs, cfg.vec_env)
+    return make_vec_env([maker(i) for i in range(cfg.n_envs)], cfg.n_envs, cfg.vec_env)
 
 
 def policy_kwargs(cfg: TrainArgs) -> dict[str, Any]:
@@ -584,19 +747,26 @@ def _resolve_config(ns: argparse.Namespace) -> tuple[TrainArgs, Path]:
         cfg_file = run / "config.json"
         if not cfg_file.is_file():
             raise ValueError(f"--resume: {cfg_file} not found; is {run} a run folder of `ipp-bench train`?")
-        saved = json.loads(cfg_file.read_text())["args"]
+        saved = _read_json(cfg_file, "options").get("args")
+        known = {f.name for f in fields(TrainArgs)}
+        if not isinstance(saved, dict) or set(saved) - known:
+            raise ValueError(f"--resume: {cfg_file} is damaged (its 'args' are not the options of ipp-bench train"
+                             + (f": unknown {sorted(set(saved) - known)}" if isinstance(saved, dict) else "")
+                             + "); restore it, or start a new --out")
         changed = {k: v for k, v in given.items() if k not in _RESUMABLE and saved.get(k) != v}
         if changed:
             raise ValueError(f"--resume cannot change {sorted(changed)}: the run was started with "
                              + ", ".join(f"{k}={saved.get(k)!r}" for k in sorted(changed)))
         cfg = TrainArgs(**{**saved, **{k: v for k, v in given.items() if k in _RESUMABLE}})
         cfg.out = str(run)
+        _check_resume_files(run)
     else:
         cfg = TrainArgs(**given)
         if not cfg.out:
             slug = cfg.task.replace("/", "-")
             cfg.out = str(Path("runs") / f"{slug}__attention__{cfg.seed}__{time.strftime('%Y%m%d-%H%M%S')}")
         run = Path(cfg.out)
+        _check_out(run)
         if (run / "config.json").is_file():
             raise ValueError(f"{run} already holds a run: pass --resume to continue it, or choose another --out")
     _check(cfg)
@@ -640,6 +810,11 @@ def run_train(args: argparse.Namespace) -> int:
     say(f"training {cfg.task} in {run} on {device} with {threads} torch threads, {cfg.vec_env} vec env"
         + (", freed memory kept for reuse (glibc)" if kept else ""))
     say(f"command: {command_line(cfg)}")
+    val_tasks = ", ".join(t for t, _ in _val_tasks(cfg))
+    say(f"validation: {cfg.eval_episodes} argmax episodes on seeds {VAL_SEED0}.. (held out of training) of "
+        f"{val_tasks} every {cfg.eval_every} steps; score = the mean ROI uncertainty reduction [%] over the "
+        "report times" + (" and the tasks" if len(_val_tasks(cfg)) > 1 else "")
+        + "; minus_greedy = score - greedy's on the same episodes")
 
     def on_term(signum, frame):  # SIGTERM behaves like Ctrl-C: the last checkpoint stays valid
         raise KeyboardInterrupt
@@ -651,7 +826,7 @@ def run_train(args: argparse.Namespace) -> int:
             bc_path = run / "warmstart" / "bc.pt"
             if not state.get("bc_done"):
                 init = load_init(cfg, device) if cfg.init else None
-                net, val = warm_start(cfg, run, device, say, make_env=lambda: make_train_env(cfg),
+                net, val = warm_start(cfg, run, device, say, make_env=lambda i=0: make_train_env(cfg, i),
                                       validate=lambda n: _validation(n, cfg), net_config=cfg.net_config(),
                                       init=init)
                 progress = json.loads((run / "warmstart" / "progress.json").read_text())

@@ -44,6 +44,50 @@ def roadmap_pos_encoding(env: gym.Env) -> np.ndarray:
     return np.asarray(env.unwrapped.roadmap.pos_encoding, dtype=np.float32)
 
 
+REWARDS = ("paper", "metric")
+
+
+def report_value(mission: Any) -> float:
+    """Sum over the report times (within the budget) of the ROI uncertainty reduction [%] as of that
+    time, counting those not reached yet at the latest value: what the episode's metric would be if
+    nothing more were measured."""
+    return float(sum(mission.metrics_at(t)["uncertainty_reduction_pct"]
+                     for t in mission.config.mission.report_times_in_budget))
+
+
+class MetricReward(gym.Wrapper):
+    """The leaderboard's metric as the reward: each step earns the change of :func:`report_value`
+    over (10 x the number of report times), so an episode's rewards sum to its mean ROI uncertainty
+    reduction over the report times / 10, less what the start's read-out gave before the first
+    action (the evaluation ROI is the truth's: a training signal the policy never observes).
+
+    The paper's reward (the env's own: the step's reduction of the belief-ROI trace relative to the
+    trace before it) pays a late relative reduction as much as an early one of the same ratio, so a
+    policy trained on it may trade the early report times for the late ones.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self._value = 0.0
+        self._scale = 1.0
+
+    def reset(self, **kwargs: Any):
+        obs, info = self.env.reset(**kwargs)
+        mission = self.env.unwrapped.mission
+        self._value = report_value(mission)
+        self._scale = 10.0 * max(len(mission.config.mission.report_times_in_budget), 1)
+        return obs, info
+
+    def step(self, action: Any):
+        obs, _, terminated, truncated, info = self.env.step(action)
+        value = report_value(self.env.unwrapped.mission)
+        reward, self._value = (value - self._value) / self._scale, value
+        return obs, reward, terminated, truncated, info
+
+    def action_masks(self) -> np.ndarray:
+        return self.env.unwrapped.action_masks()
+
+
 class DropPosEncoding(gym.ObservationWrapper):
     """Removes ``pos_encoding`` from a graph observation (the policy holds the roadmap's constant)."""
 
@@ -86,6 +130,9 @@ def _shard_worker(remote, parent_remote, env_fns: CloudpickleWrapper) -> None:
     """Worker process of :class:`ShardedSubprocVecEnv`: a ``DummyVecEnv`` over its environments."""
     # Ctrl-C is the main process's to handle (it saves and says how to resume); the workers end with it.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # a forked worker inherits the main process's SIGTERM handler (`ipp-bench train` raises
+    # KeyboardInterrupt there to save and stop); a worker terminated at exit just ends, silently
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     parent_remote.close()
     venv = DummyVecEnv(env_fns.var)
     while True:
@@ -217,9 +264,11 @@ class ShardedSubprocVecEnv(VecEnv):
         return self._call("env_is_wrapped", indices, wrapper_class)
 
 
-def make_vec_env(make_env: Callable[[], gym.Env], n_envs: int, kind: str = "subproc") -> VecEnv:
-    """``n_envs`` copies of ``make_env()`` (a graph env, Monitor-wrapped by the caller), without the
-    positional encoding in the observations, with masks from the observations.
+def make_vec_env(make_env: Callable[[], gym.Env] | Sequence[Callable[[], gym.Env]], n_envs: int,
+                 kind: str = "subproc") -> VecEnv:
+    """``n_envs`` copies of ``make_env()`` (a graph env, Monitor-wrapped by the caller), or one
+    environment from each of ``n_envs`` factories, without the positional encoding in the
+    observations, with masks from the observations.
 
     Raises:
         ValueError: ``kind`` is not one of :data:`VEC_ENVS`.
@@ -227,12 +276,17 @@ def make_vec_env(make_env: Callable[[], gym.Env], n_envs: int, kind: str = "subp
     if kind not in VEC_ENVS:
         raise ValueError(f"vec env {kind!r} is invalid: expected one of {VEC_ENVS}")
 
-    def make() -> gym.Env:
-        return DropPosEncoding(make_env())
+    factories = list(make_env) if isinstance(make_env, Sequence) else [make_env] * n_envs
+    if len(factories) != n_envs:
+        raise ValueError(f"make_vec_env: {len(factories)} environment factories for n_envs = {n_envs}")
 
+    def dropping(factory: Callable[[], gym.Env]) -> Callable[[], gym.Env]:
+        return lambda: DropPosEncoding(factory())
+
+    makers = [dropping(f) for f in factories]
     if kind == "subproc":
         # fork: the workers start in well under a second (forkserver would re-import torch in each).
-        venv: VecEnv = ShardedSubprocVecEnv([make] * n_envs, min(n_envs, available_cpus()))
+        venv: VecEnv = ShardedSubprocVecEnv(makers, min(n_envs, available_cpus()))
     else:
-        venv = DummyVecEnv([make] * n_envs)
+        venv = DummyVecEnv(makers)
     return MasksFromObservation(venv)

@@ -76,10 +76,12 @@ class _DaggerPlanner(GraphPlanner):
     name = "dagger"
 
     def __init__(self, expert: _PlannerExpert, net: AttentionNet | None, beta: float, rng: np.random.Generator,
-                 device: torch.device, temperature: float, node_dim: int) -> None:
+                 device: torch.device, temperature: float, node_dim: int, teacher: str = "greedy",
+                 invariant: bool = False) -> None:
         super().__init__(None)
         self.expert, self.net, self.beta, self.student_rng = expert, net, beta, rng
         self.device, self.temperature, self.node_dim = device, temperature, node_dim
+        self.teacher, self.invariant = teacher, invariant
         self.obs_list: list[dict] = []
         self.actions: list[int] = []
         self.targets: list[np.ndarray] = []
@@ -89,7 +91,8 @@ class _DaggerPlanner(GraphPlanner):
         self.expert.planner.reset(view, seed)
 
     def act(self, obs: dict) -> int:
-        obs = extend_observation(obs, self.view, self.node_dim)  # the observation the student is trained on
+        # the observation the student is trained on
+        obs = extend_observation(obs, self.view, self.node_dim, self.teacher, self.invariant)
         a_exp, scores = self.expert(obs)
         self.targets.append(soft_target(a_exp, scores, len(obs["action_mask"]), self.temperature))
         a = a_exp
@@ -199,7 +202,7 @@ class BCDataset:
 
 def collect_episodes(env, expert, net: AttentionNet | None, episodes: int, beta: float, data: BCDataset,
                      gamma: float, rng: np.random.Generator, seed0: int, device: torch.device,
-                     temperature: float = 0.0) -> dict[str, float]:
+                     temperature: float = 0.0, net_config: NetConfig | None = None) -> dict[str, float]:
     """Fly ``episodes`` episodes through the episode loop; at each state the expert's action is
     executed with probability ``beta`` (else the student's, sampled); every state is labelled with
     the expert's action. ``env`` is the training env (the look-gain wrapper adds that feature)."""
@@ -207,7 +210,9 @@ def collect_episodes(env, expert, net: AttentionNet | None, episodes: int, beta:
     node_dim = env.observation_space["node_features"].shape[-1]
     red, steps = [], 0
     for e in range(episodes):
-        planner = _DaggerPlanner(expert, net, beta, rng, device, temperature, node_dim)
+        planner = _DaggerPlanner(expert, net, beta, rng, device, temperature, node_dim,
+                                 net_config.skip_teacher if net_config else "greedy",
+                                 bool(net_config and net_config.invariant))
         rewards: list[float] = []
         result = fly_episode(base, planner, seed0 + e, on_decision=lambda d: rewards.append(float(d.reward)))
         data.add_episode(planner.obs_list, planner.actions, planner.targets, rewards, gamma)
@@ -278,7 +283,7 @@ def _load_chunk(data: BCDataset, path: Path) -> None:
 
 
 def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], None],
-               make_env: Callable[[], Any], validate: Callable[[AttentionNet], dict[str, float]],
+               make_env: Callable[..., Any], validate: Callable[[AttentionNet], dict[str, float]],
                net_config: NetConfig, init: AttentionNet | None = None) -> tuple[AttentionNet, dict[str, float]]:
     """Behaviour cloning (DAgger) from ``cfg.warm_start``; writes ``warmstart/bc.pt``; resumable.
 
@@ -287,7 +292,8 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
         run: the run folder.
         device: torch device of the fit.
         say: progress messages.
-        make_env: builds the training environment.
+        make_env: builds the training environment (``make_env(i)``: that of task i of ``cfg.tasks``
+            when the run has several; each round's episodes are split over them in turn).
         validate: validation figures of a network (``val/score``, ``val/unc_red_<t>s``, ...).
         net_config: sizes of the network.
         init: weights to start from (``--init``) instead of a fresh initialisation.
@@ -296,7 +302,8 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
     out.mkdir(exist_ok=True)
     progress_file = out / "progress.json"
     progress = json.loads(progress_file.read_text()) if progress_file.is_file() else {}
-    env = make_env()
+    n_tasks = len(getattr(cfg, "tasks", [None]))
+    envs = [make_env(i) for i in range(n_tasks)] if n_tasks > 1 else [make_env()]
     expert = make_expert(cfg.warm_start)
     torch.manual_seed(cfg.seed)
     net = AttentionNet(net_config).to(device)
@@ -335,9 +342,16 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
         n_ep = cfg.bc_episodes if rnd == 0 else cfg.bc_round_episodes
         beta = 0.5 ** rnd
         start = len(data)
-        stats = collect_episodes(env, expert, None if rnd == 0 else net, n_ep, beta, data, cfg.gamma, rng,
-                                 seed, device, temperature=cfg.bc_temperature)
-        seed += n_ep
+        parts = []
+        for i, env in enumerate(envs):  # one task: all episodes; several: split in turn, seeds consecutive
+            n_i = n_ep // len(envs) + (i < n_ep % len(envs))
+            parts.append(collect_episodes(env, expert, None if rnd == 0 else net, n_i, beta, data, cfg.gamma, rng,
+                                          seed, device, temperature=cfg.bc_temperature, net_config=net_config))
+            seed += n_i
+        stats = parts[0] if len(parts) == 1 else {
+            "episodes": sum(p["episodes"] for p in parts), "steps": sum(p["steps"] for p in parts),
+            "unc_red_final": float(np.average([p["unc_red_final"] for p in parts if p["episodes"]],
+                                              weights=[p["episodes"] for p in parts if p["episodes"]]))}
         say(f"warm start round {rnd}: {stats['episodes']} episodes (beta {beta:.2f}), {len(data)} samples, "
             f"final ROI uncertainty reduction of the flown paths {stats['unc_red_final']:.1f}%")
         fit_rows: list[dict] = []
@@ -360,7 +374,7 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
     log({"phase": "validate", **val})
     wall = time.time() - t0
     say(f"warm start done in {wall:.0f} s; validation: " + ", ".join(
-        f"{k.split('/')[-1]} {v:.2f}" for k, v in val.items()))
+        f"{k.split('/', 1)[-1]} {v:.2f}" for k, v in val.items()))
     save_checkpoint(net, out / "bc.pt", meta={"task": cfg.task, "phase": "warm start", "expert": cfg.warm_start,
                                                "samples": len(data), "wall_s": wall, **val})
     for r in range(cfg.bc_rounds + 1):  # the samples are no longer needed once bc.pt exists

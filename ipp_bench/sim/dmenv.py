@@ -42,7 +42,7 @@ def load(task_id: str = DEFAULT_TASK, *, seed: int | None = 0, **overrides: Any)
     import ipp_bench.envs as envs
 
     spec = envs.task_spec(task_id)
-    if not spec.entry_point.startswith("ipp_bench.sim"):
+    if "deployment" not in spec.tags:  # the MuJoCo tasks carry the tag
         raise ValueError(f"task {task_id!r} is not a MuJoCo deployment: valid are {envs.tagged('deployment')}")
     task = gym.make(spec.id, **overrides).unwrapped
     task.seed_episodes(seed)

@@ -188,3 +188,88 @@ def test_init_checkpoint_must_match_the_network_options(tmp_path):
     proc = _train(*TINY, "--init", str(tmp_path / "missing.pt"), "--out", str(run), check=False)
     assert proc.returncode == 2 and "not found" in proc.stderr and not run.exists()
     _train(*TINY, "--init", str(init), "--total-steps", "32", "--out", str(run))
+
+
+def test_mix_and_skip_teacher_are_checked_before_the_run_folder(tmp_path, capsys):
+    from ipp_bench.policies.train import main
+
+    cases = [
+        (["--mix", "ipp_bench/Grid30Train-v1"], "one PPO run holds one roadmap"),
+        (["--mix", "ipp_bench/Nope-v1"], "--mix 'ipp_bench/Nope-v1' is not a registered task"),
+        (["--mix", "ipp_bench/Grid15-v0"], "named twice"),
+        (["--skip-teacher", "far"], "--skip-teacher far needs --rate-skip"),
+    ]
+    for i, (extra, why) in enumerate(cases):
+        run = tmp_path / f"r{i}"
+        assert main([*TINY, *extra, "--total-steps", "32", "--out", str(run)]) == 2
+        err = capsys.readouterr().err
+        assert why in err and err.count("\n") == 1, (extra, err)
+        assert not run.exists()
+    with pytest.raises(SystemExit):  # argparse: not one of the choices
+        main([*TINY, "--rate-skip", "--skip-teacher", "oracle", "--out", str(tmp_path / "x")])
+    assert "invalid choice: 'oracle'" in capsys.readouterr().err
+
+
+def test_bad_numbers_and_folders_are_one_line_before_the_run_folder(tmp_path, capsys):
+    from ipp_bench.policies.train import main
+
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    cases = [
+        (["--learning-rate", "nan"], "--learning-rate = nan is invalid: expected a finite number in (0, 1)"),
+        (["--clip-range", "-0.1"], "--clip-range = -0.1 is invalid: expected a finite number > 0"),
+        (["--ent-coef", "inf"], "--ent-coef = inf is invalid"),
+        (["--max-grad-norm", "0"], "--max-grad-norm = 0.0 is invalid"),
+        (["--target-kl", "-1"], "--target-kl = -1.0 is invalid"),
+        (["--n-envs", "100000"], "--n-envs = 100000 is invalid: expected an integer in [1, 256]"),
+        (["--rate-skip", "--rate-skip-init", "nan"], "--rate-skip-init = nan is invalid"),
+    ]
+    for i, (extra, why) in enumerate(cases):
+        run = tmp_path / f"r{i}"
+        assert main([*TINY, *extra, "--total-steps", "32", "--out", str(run)]) == 2
+        err = capsys.readouterr().err
+        assert why in err and err.count("\n") == 1, (extra, err)
+        assert not run.exists()
+    import os
+
+    folders = [(afile, "is a file, not a folder"), (afile / "run", "is a file, so the run folder cannot")]
+    if os.geteuid() != 0:  # root writes anywhere
+        folders.append((locked / "run", "is not writable"))
+    for out, why in folders:
+        assert main([*TINY, "--total-steps", "32", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert why in err and err.count("\n") == 1, err
+
+
+def test_resume_with_damaged_files_names_the_file(tmp_path, capsys):
+    from ipp_bench.policies.train import main
+
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    config = run / "config.json"
+    for text, why in (("{not json", "config.json is damaged (Expecting property name"),
+                      ("[1, 2]", "config.json is damaged (a JSON list"),
+                      ('{"args": {"bogus": 1}}', "unknown ['bogus']")):
+        config.write_text(text)
+        assert main(["--out", str(run), "--resume"]) == 2
+        err = capsys.readouterr().err
+        assert why in err and err.count("\n") == 1, err
+    import dataclasses
+    import json
+
+    from ipp_bench.policies.train import TrainArgs
+
+    config.write_text(json.dumps({"args": dataclasses.asdict(TrainArgs(out=str(run)))}))
+    (run / "state.json").write_text('{"ppo_steps": 3')
+    assert main(["--out", str(run), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "state.json is damaged" in err and err.count("\n") == 1
+    (run / "state.json").write_text('{"ppo_steps": 0}')
+    (run / "checkpoints" / "latest.zip").write_bytes(b"PK\x03\x04 truncated")
+    (run / "checkpoints" / "step_1024_steps.zip").write_bytes(b"")
+    assert main(["--out", str(run), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "latest.zip is corrupt" in err and "step_1024_steps.zip" in err and err.count("\n") == 1, err

@@ -125,3 +125,29 @@ def test_bad_vec_env_kind_is_refused():
 
 def test_keep_freed_memory_reports_whether_it_applied():
     assert isinstance(keep_freed_memory(), bool)
+
+
+def test_metric_reward_sums_to_the_episodes_report_mean():
+    """An episode's rewards add up to its report: the mean ROI uncertainty reduction over the report
+    times, over 10, less what the start's read-out (before the first action) gave."""
+    import ipp_bench.envs  # noqa: F401
+    from ipp_bench.planners import make_planner
+    from ipp_bench.planners.base import RobotView
+    from ipp_bench.policies.vec import MetricReward
+
+    env = MetricReward(gym.make("ipp_bench/Hotspots15Eval-v2", budget_s=120.0))
+    obs, _ = env.reset(seed=4)
+    at_start = np.mean([row["uncertainty_reduction_pct"] for row in env.unwrapped.mission.report()]) / 10
+    greedy = make_planner("greedy")
+    greedy.reset(RobotView(env.unwrapped), 4)
+    total, done, steps = 0.0, False, 0
+    while not done:
+        obs, r, term, trunc, _ = env.step(greedy.act(obs))
+        total += r
+        done = term or trunc
+        steps += 1
+    report = env.unwrapped.mission.report()
+    assert len(report) == 2 and steps > 20  # 50 and 100 s fit the 120 s budget
+    want = np.mean([row["uncertainty_reduction_pct"] for row in report]) / 10 - at_start
+    assert 0 < at_start < 1 and total == pytest.approx(want, rel=1e-9)
+    assert want > 1  # the test cannot pass on an empty episode

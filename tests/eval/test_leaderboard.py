@@ -242,6 +242,7 @@ def test_process_pool_gives_the_same_results(reference_run, tmp_path):
 
 
 @pytest.mark.ray
+@pytest.mark.slow  # a local Ray start: 10 s of the 4-minute default run (CI runs -m slow too)
 def test_ray_gives_the_same_results(reference_run, tmp_path):
     ray = pytest.importorskip("ray")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)

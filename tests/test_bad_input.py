@@ -198,10 +198,7 @@ def test_sigterm_leaves_no_child_behind_and_a_rerun_completes(tmp_path, sig):
         assert len(_descendants_alive(proc.pid)) >= 3  # the run, its workers (and their forkserver)
         os.kill(proc.pid, sig)
         proc.wait(timeout=60)
-        deadline = time.monotonic() + 30
-        while _descendants_alive(proc.pid) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        assert _descendants_alive(proc.pid) == [], "a worker outlived the leaderboard"
+        _none_left(proc, "a worker")
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
@@ -302,17 +299,30 @@ def test_ctrl_c_during_evaluate_is_one_line_and_exit_130(capsys, monkeypatch):
     assert rc == 130 and err.strip() == "ipp-bench: interrupted"
 
 
+def _none_left(proc, what):
+    """Wait up to 30 s for every descendant of ``proc`` to end; fail naming ``what`` if one is left."""
+    deadline = time.monotonic() + 30
+    while _descendants_alive(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert _descendants_alive(proc.pid) == [], f"{what} outlived the leaderboard"
+
+
+def _greedy_leaderboard(out, backend, episodes):
+    """(argv, process) of a greedy leaderboard on 60 s missions, 2 workers, in its own session."""
+    argv = [sys.executable, "-m", "ipp_bench.cli", "leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "greedy",
+            "--episodes", str(episodes), "--backend", backend, "--workers", "2", "--no-progress", "--out", str(out),
+            "--env", "budget_s=60", "--env", "report_times=[30,60]"]
+    return argv, subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                  start_new_session=True)
+
+
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc (Linux)")
 @pytest.mark.timeout(240)
 def test_a_worker_killed_by_the_os_stops_the_run_with_one_line_and_the_resume_command(tmp_path):
     """SIGKILL on one pool worker (as the OOM killer does): one line naming an episode, exit 1,
     the resume command, no process left; the rerun completes."""
     out = tmp_path / "lb"
-    argv = [sys.executable, "-m", "ipp_bench.cli", "leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "greedy",
-            "--episodes", "8", "--backend", "process", "--workers", "2", "--no-progress", "--out", str(out),
-            "--env", "budget_s=60", "--env", "report_times=[30,60]"]
-    proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    argv, proc = _greedy_leaderboard(out, "process", 8)
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:  # the workers: children of the forkserver, grandchildren of the run
@@ -323,10 +333,7 @@ def test_a_worker_killed_by_the_os_stops_the_run_with_one_line_and_the_resume_co
             time.sleep(0.2)
         os.kill(workers[0], signal.SIGKILL)
         stdout, stderr = proc.communicate(timeout=90)
-        deadline = time.monotonic() + 30
-        while _descendants_alive(proc.pid) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        assert _descendants_alive(proc.pid) == [], "a worker outlived the leaderboard"
+        _none_left(proc, "a worker")
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
@@ -527,11 +534,7 @@ def test_sigterm_on_the_ray_backend_is_the_same_one_line_and_exit_143(tmp_path):
     """Ray's own SIGTERM handler (a C++ stack dump, then death) does not replace the leaderboard's."""
     pytest.importorskip("ray")
     out = tmp_path / "lb"
-    argv = [sys.executable, "-m", "ipp_bench.cli", "leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "greedy",
-            "--episodes", "6", "--backend", "ray", "--workers", "2", "--no-progress", "--out", str(out),
-            "--env", "budget_s=60", "--env", "report_times=[30,60]"]
-    proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    argv, proc = _greedy_leaderboard(out, "ray", 6)
     try:
         deadline = time.monotonic() + 180
         while time.monotonic() < deadline:
@@ -541,10 +544,7 @@ def test_sigterm_on_the_ray_backend_is_the_same_one_line_and_exit_143(tmp_path):
             time.sleep(0.2)
         proc.send_signal(signal.SIGTERM)
         _, stderr = proc.communicate(timeout=120)
-        deadline = time.monotonic() + 30
-        while _descendants_alive(proc.pid) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        assert _descendants_alive(proc.pid) == [], "a Ray process outlived the leaderboard"
+        _none_left(proc, "a Ray process")
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)

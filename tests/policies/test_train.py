@@ -190,6 +190,19 @@ def test_init_checkpoint_must_match_the_network_options(tmp_path):
     _train(*TINY, "--init", str(init), "--total-steps", "32", "--out", str(run))
 
 
+def _refused_in_one_line(cases, tmp_path, capsys):
+    """Each (extra options, expected text): `ipp-bench train` exits 2 with one line saying it, and
+    makes no run folder."""
+    from ipp_bench.policies.train import main
+
+    for i, (extra, why) in enumerate(cases):
+        run = tmp_path / f"r{i}"
+        assert main([*TINY, *extra, "--total-steps", "32", "--out", str(run)]) == 2
+        err = capsys.readouterr().err
+        assert why in err and err.count("\n") == 1, (extra, err)
+        assert not run.exists()
+
+
 def test_mix_and_skip_teacher_are_checked_before_the_run_folder(tmp_path, capsys):
     from ipp_bench.policies.train import main
 
@@ -199,12 +212,7 @@ def test_mix_and_skip_teacher_are_checked_before_the_run_folder(tmp_path, capsys
         (["--mix", "ipp_bench/Grid15-v0"], "named twice"),
         (["--skip-teacher", "far"], "--skip-teacher far needs --rate-skip"),
     ]
-    for i, (extra, why) in enumerate(cases):
-        run = tmp_path / f"r{i}"
-        assert main([*TINY, *extra, "--total-steps", "32", "--out", str(run)]) == 2
-        err = capsys.readouterr().err
-        assert why in err and err.count("\n") == 1, (extra, err)
-        assert not run.exists()
+    _refused_in_one_line(cases, tmp_path, capsys)
     with pytest.raises(SystemExit):  # argparse: not one of the choices
         main([*TINY, "--rate-skip", "--skip-teacher", "oracle", "--out", str(tmp_path / "x")])
     assert "invalid choice: 'oracle'" in capsys.readouterr().err
@@ -227,12 +235,7 @@ def test_bad_numbers_and_folders_are_one_line_before_the_run_folder(tmp_path, ca
         (["--n-envs", "100000"], "--n-envs = 100000 is invalid: expected an integer in [1, 256]"),
         (["--rate-skip", "--rate-skip-init", "nan"], "--rate-skip-init = nan is invalid"),
     ]
-    for i, (extra, why) in enumerate(cases):
-        run = tmp_path / f"r{i}"
-        assert main([*TINY, *extra, "--total-steps", "32", "--out", str(run)]) == 2
-        err = capsys.readouterr().err
-        assert why in err and err.count("\n") == 1, (extra, err)
-        assert not run.exists()
+    _refused_in_one_line(cases, tmp_path, capsys)
     import os
 
     folders = [(afile, "is a file, not a folder"), (afile / "run", "is a file, so the run folder cannot")]

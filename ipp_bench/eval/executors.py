@@ -228,6 +228,7 @@ class RayExecutor:
         self.address = address or os.environ.get("RAY_ADDRESS") or None
         self._owns = False
         self._local = False  # a local Ray started here (its processes are ours to clean up)
+        self._subreaper = False
         # ray.init installs a C++ handler that dumps a stack and kills the process on SIGTERM; the
         # caller's handler (the leaderboard: stop like Ctrl-C, keep the episodes) is put back after it
         handler = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
@@ -245,6 +246,9 @@ class RayExecutor:
             self._owns = True
             self.where = f"the Ray cluster at {self.address}"
         else:
+            # orphaned descendants (a helper whose parent, the raylet, died first) are re-parented
+            # to this process rather than to init, so that close() still finds them
+            self._subreaper = _set_child_subreaper(True)
             ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
             self._owns = True
             self._local = True
@@ -279,8 +283,14 @@ class RayExecutor:
             # timeout (seen: still alive a minute later), so the ones left after the shutdown go
             helpers = [p for p in _descendants(os.getpid()) if _is_ray(p[0])] if self._local else []
             self._ray.shutdown()
+            if self._local:  # and those started meanwhile, or orphaned and re-parented here (subreaper)
+                helpers = list(dict.fromkeys(helpers + [p for p in _descendants(os.getpid()) if _is_ray(p[0])]))
             if helpers:
                 _reap(helpers)
+                _wait_zombies([pid for pid, _ in helpers])
+        if self._subreaper:
+            _set_child_subreaper(False)
+            self._subreaper = False
         self._owns = False
 
     def describe(self) -> str:
@@ -348,6 +358,38 @@ def _reap(processes: list[tuple[int, str]], grace_s: float = 3.0) -> None:
                 os.kill(pid, signal.SIGKILL)
             except OSError:
                 pass
+
+
+def _set_child_subreaper(on: bool) -> bool:
+    """Linux ``prctl(PR_SET_CHILD_SUBREAPER)``: whether it is set now (False where unsupported)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(36, int(on), 0, 0, 0) == 0 and on  # 36: PR_SET_CHILD_SUBREAPER
+    except (OSError, AttributeError):
+        return False
+
+
+def _wait_zombies(pids: list[int], timeout_s: float = 2.0) -> None:
+    """Collect the exit status of those of ``pids`` that are (or became, as subreaper) our children,
+    so that none stays a zombie; other processes' children are not touched."""
+    deadline = time.monotonic() + timeout_s
+    pending = list(pids)
+    while pending and time.monotonic() < deadline:
+        left = []
+        for pid in pending:
+            try:
+                done, _ = os.waitpid(pid, os.WNOHANG)
+            except ChildProcessError:  # not our child (its parent reaps it) or already collected
+                continue
+            if done == 0:
+                left.append(pid)
+        pending = left
+        if pending:
+            time.sleep(0.05)
 
 
 def check_workers(workers: int) -> None:

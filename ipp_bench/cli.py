@@ -274,12 +274,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def _reference(reference: str | None, planners: Sequence[str]) -> str | None:
     """The report's reference planner: ``--reference`` must name one of the run's planners; without
     it, greedy where it runs (else the report says there is no paired comparison)."""
-    from .eval.report import DEFAULT_REFERENCE, resolve_reference
+    from .eval.report import DEFAULT_REFERENCE
 
     if reference is None:
         return DEFAULT_REFERENCE
-    if not reference.strip() or resolve_reference(reference.strip(), planners) is None:
-        raise ValueError(f"--reference {reference!r} names no planner of this run: valid are {list(planners)}")
+    _one_of(reference, planners, "--reference")
     return reference.strip()
 
 

@@ -34,6 +34,29 @@ def duration_graph(view: Any):
     return cached[1]
 
 
+def best_far_target(view: Any, obs: dict[str, np.ndarray], targets: np.ndarray, rates: Any) -> tuple[float, int]:
+    """(rate, neighbour index) of the best far target and the first leg of the quickest roadmap
+    path to it, or (-inf, -1) when no target is reachable within the budget. ``rates(t, ok)`` gives
+    each target's gain per second of flight from its flight times ``t`` (``ok``: reachable; -inf
+    where not scored); it is called only when some target is reachable."""
+    from scipy.sparse.csgraph import dijkstra
+
+    cur = int(obs["current_node"][0])
+    t, pred = dijkstra(duration_graph(view), indices=cur, return_predecessors=True)
+    t = t[targets]
+    ok = (t > 0) & np.isfinite(t) & view.fits_budget(t, view.remaining_s)
+    if not ok.any():
+        return -np.inf, -1
+    far = rates(t, ok)
+    j = int(np.argmax(far))
+    if not np.isfinite(far[j]):
+        return -np.inf, -1
+    hop = int(targets[j])
+    while pred[hop] != cur:
+        hop = int(pred[hop])
+    return float(far[j]), int(np.flatnonzero(view.roadmap.neighbours[cur] == hop)[0])
+
+
 def far_move(view: Any, obs: dict[str, np.ndarray], scores: np.ndarray, targets: np.ndarray,
              look_gains: Any) -> int:
     """Greedy's neighbour (the argmax of ``scores``, -inf where masked), or the first leg of the
@@ -41,23 +64,11 @@ def far_move(view: Any, obs: dict[str, np.ndarray], scores: np.ndarray, targets:
     it: the rule of the ``oracle`` reference (on the true ROI) and of the ``far`` probe (on the
     belief's). ``look_gains()`` gives the gain of one look at each of ``targets`` (called only when a
     target is reachable within the budget)."""
-    from scipy.sparse.csgraph import dijkstra
-
     best = int(np.argmax(scores))
-    cur = int(obs["current_node"][0])
-    t, pred = dijkstra(duration_graph(view), indices=cur, return_predecessors=True)
-    t = t[targets]
-    ok = (t > 0) & np.isfinite(t) & view.fits_budget(t, view.remaining_s)
-    if not ok.any():
+    rate, action = best_far_target(
+        view, obs, targets, lambda t, ok: np.where(ok, look_gains() / np.where(ok, t, 1.0), -np.inf))
+    if not rate > scores[best]:
         return best
-    far = np.where(ok, look_gains() / np.where(ok, t, 1.0), -np.inf)
-    j = int(np.argmax(far))
-    if not far[j] > scores[best]:
-        return best
-    hop = int(targets[j])
-    while pred[hop] != cur:
-        hop = int(pred[hop])
-    action = int(np.flatnonzero(view.roadmap.neighbours[cur] == hop)[0])
     return action if obs["action_mask"][action] else best
 
 
@@ -65,16 +76,14 @@ FAR_TOP = 16  # [-] far targets whose look gain is computed exactly per decision
 
 
 class FarTargets:
-    """What :func:`far_scores` needs of one roadmap, mission clock and camera (built once per roadmap):
-    the leg-duration graph for Dijkstra and one look per node, padded for batched algebra."""
+    """What :func:`far_scores` needs of one roadmap and camera (built once per roadmap): one look per
+    node, padded for batched algebra."""
 
     def __init__(self, view: Any) -> None:
         from .oracle import LookBatch
 
         rm = view.roadmap
-        n = rm.n_nodes
-        self.graph = duration_graph(view)
-        looks = [(i, view.sensor.observe(rm.positions[i])) for i in range(n)]
+        looks = [(i, view.sensor.observe(rm.positions[i])) for i in range(rm.n_nodes)]
         looks = [(i, o) for i, o in looks if o is not None]
         self.targets = np.array([i for i, _ in looks], dtype=np.int64)
         self.looks = LookBatch([o for _, o in looks])
@@ -115,34 +124,24 @@ def far_scores(view: Any, obs: dict[str, np.ndarray], top: int = FAR_TOP) -> np.
     to the first neighbour on its path when it beats every neighbour's leg (and that neighbour is
     allowed), so the argmax is greedy's choice unless then. Masked neighbours score -inf.
     """
-    from scipy.sparse.csgraph import dijkstra
-
     from ..policies.features import LookGain  # the cheap ranking (policies: the network's feature)
     from .greedy import greedy_scores
 
     mask = np.asarray(obs["action_mask"]).astype(bool).reshape(-1)
-    cur = int(obs["current_node"][0])
-    scores = np.where(mask, greedy_scores(view, cur), -np.inf)
+    scores = np.where(mask, greedy_scores(view, int(obs["current_node"][0])), -np.inf)
     ft = FarTargets.of(view)
-    t, pred = dijkstra(ft.graph, indices=cur, return_predecessors=True)
-    t = t[ft.targets]
-    ok = (t > 0) & np.isfinite(t) & view.fits_budget(t, view.remaining_s)
-    if not ok.any():
-        return scores
-    roi = view.belief_roi()
-    g = LookGain.of(view)(view.belief.variance, roi)[ft.targets]
-    approx = np.where(ok, g / np.where(ok, t, 1.0), -np.inf)
-    sel = np.argpartition(-approx, top)[:top] if approx.size > top else np.arange(approx.size)
-    sel = sel[np.isfinite(approx[sel])]
-    far = ft.gains(sel, view.belief.cov, roi) / t[sel]
-    if not far.size:
-        return scores
-    j = int(np.argmax(far))
-    if far[j] > scores.max():
-        hop = int(ft.targets[sel[j]])
-        while pred[hop] != cur:
-            hop = int(pred[hop])
-        a = np.flatnonzero(view.roadmap.neighbours[cur] == hop)
-        if a.size and mask[a[0]]:
-            scores[a[0]] = far[j]
+
+    def rates(t: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        roi = view.belief_roi()
+        g = LookGain.of(view)(view.belief.variance, roi)[ft.targets]
+        approx = np.where(ok, g / np.where(ok, t, 1.0), -np.inf)
+        sel = np.argpartition(-approx, top)[:top] if approx.size > top else np.arange(approx.size)
+        sel = sel[np.isfinite(approx[sel])]
+        out = np.full(t.size, -np.inf)
+        out[sel] = ft.gains(sel, view.belief.cov, roi) / t[sel]
+        return out
+
+    rate, action = best_far_target(view, obs, ft.targets, rates)
+    if rate > scores.max() and mask[action]:
+        scores[action] = rate
     return scores

@@ -58,7 +58,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import shlex
 import signal
 import sys
@@ -73,6 +72,7 @@ import torch
 
 from ipp_bench._threads import available_cpus, keep_freed_memory
 from ipp_bench.config import check_integer, check_number
+from ipp_bench.data import check_output_dir
 from ipp_bench.envs.registry import parse_overrides
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, RATE_NODE_DIM, SKIP_TEACHERS, gain_feature_wrapper
@@ -268,21 +268,6 @@ _NUMBER_RANGES: dict[str, tuple[float | None, float | None, bool, bool]] = {  # 
 }
 
 
-def _check_out(run: Path) -> None:
-    """``--out`` must be a folder this process can make and write in (one line, before any work)."""
-    if run.exists() and not run.is_dir():
-        raise ValueError(f"--out {run} is a file, not a folder: choose another --out")
-    probe = run
-    while not probe.exists():
-        if probe.parent == probe:
-            break
-        probe = probe.parent
-    if probe.exists() and not probe.is_dir():
-        raise ValueError(f"--out {run}: {probe} is a file, so the run folder cannot be made there")
-    if probe.exists() and not os.access(probe, os.W_OK | os.X_OK):
-        raise ValueError(f"--out {run}: {probe} is not writable by this user")
-
-
 def _read_json(path: Path, what: str) -> dict:
     """``path``'s JSON object, or one line naming the file and what is wrong with it."""
     try:
@@ -434,28 +419,31 @@ def evaluate_net(net: AttentionNet, task: str, episodes: int, seed0: int = VAL_S
         ``val/score`` (mean ROI uncertainty reduction over the report times within the budget),
         ``val/unc_red_<t>s`` per report time.
     """
-    from ipp_bench.planners.episode import fly_episode
     from ipp_bench.policies.planner import AttentionPlanner
 
-    env = make_env(task, **(overrides or {})).unwrapped
     planner = AttentionPlanner.from_net(net, next(net.parameters()).device)
     was_training = net.training
     net.eval()
-    reports = [fly_episode(env, planner, seed0 + i).report for i in range(episodes)]
-    net.train(was_training)
-    return _val_figures(reports)
+    try:
+        return _fly_validation(planner, task, episodes, seed0, overrides)
+    finally:
+        net.train(was_training)
 
 
 def evaluate_planner(spec: str, task: str, episodes: int, seed0: int = VAL_SEED0,
                      overrides: dict[str, Any] | None = None) -> dict[str, float]:
     """:func:`evaluate_net`'s figures for a registered planner (the validation's greedy reference)."""
     from ipp_bench.planners import make_planner
+
+    return _fly_validation(make_planner(spec), task, episodes, seed0, overrides)
+
+
+def _fly_validation(planner: Any, task: str, episodes: int, seed0: int,
+                    overrides: dict[str, Any] | None) -> dict[str, float]:
     from ipp_bench.planners.episode import fly_episode
 
     env = make_env(task, **(overrides or {})).unwrapped
-    planner = make_planner(spec)
-    reports = [fly_episode(env, planner, seed0 + i).report for i in range(episodes)]
-    return _val_figures(reports)
+    return _val_figures([fly_episode(env, planner, seed0 + i).report for i in range(episodes)])
 
 
 def _val_figures(reports: list) -> dict[str, float]:
@@ -766,7 +754,7 @@ def _resolve_config(ns: argparse.Namespace) -> tuple[TrainArgs, Path]:
             slug = cfg.task.replace("/", "-")
             cfg.out = str(Path("runs") / f"{slug}__attention__{cfg.seed}__{time.strftime('%Y%m%d-%H%M%S')}")
         run = Path(cfg.out)
-        _check_out(run)
+        check_output_dir(run)  # a file in the way, or not writable: one line, before any work
         if (run / "config.json").is_file():
             raise ValueError(f"{run} already holds a run: pass --resume to continue it, or choose another --out")
     _check(cfg)

@@ -10,7 +10,7 @@ gym = pytest.importorskip("gymnasium")
 import ipp_bench.envs  # noqa: F401
 from ipp_bench.planners import make_planner
 from ipp_bench.planners.base import RobotView
-from ipp_bench.planners.far import FarTargets, far_scores
+from ipp_bench.planners.far import FarTargets, duration_graph, far_scores
 from ipp_bench.policies.features import neighbour_rates
 
 TASK = "ipp_bench/Hotspots30Eval-v2"
@@ -68,7 +68,7 @@ def test_far_scores_are_greedys_unless_a_far_target_wins_then_its_first_leg_on_a
             nb = int(env.roadmap.neighbours[cur, a])
             # the target is where its score comes from: some node j with gain / D[cur, j] == s[a],
             # reached through nb on a quickest path
-            D = dijkstra(ft.graph, indices=[cur, nb])
+            D = dijkstra(duration_graph(view), indices=[cur, nb])
             t = D[0, ft.targets]
             through = np.flatnonzero(np.isclose(D[0, nb] + D[1, ft.targets], t) & (t > 0))
             rates = np.concatenate([ft.gains(c, env.mission.belief.cov, env.mission.belief_roi()) / t[c]

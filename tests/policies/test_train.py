@@ -238,7 +238,7 @@ def test_bad_numbers_and_folders_are_one_line_before_the_run_folder(tmp_path, ca
     _refused_in_one_line(cases, tmp_path, capsys)
     import os
 
-    folders = [(afile, "is a file, not a folder"), (afile / "run", "is a file, so the run folder cannot")]
+    folders = [(afile, "is a file, not a folder"), (afile / "run", f"{afile} is a file, not a folder")]
     if os.geteuid() != 0:  # root writes anywhere
         folders.append((locked / "run", "is not writable"))
     for out, why in folders:

@@ -14,8 +14,8 @@ import argparse
 
 import numpy as np
 
+from ipp_bench.envs import make_env
 from ipp_bench.eval.plan import episode_seeds, resolve_task
-from ipp_bench.eval.runner import make_env
 from ipp_bench.planners import make_planner
 from ipp_bench.planners.base import RobotView
 

@@ -37,10 +37,8 @@ TASK = "ipp_bench/MuJoCoWeed15-v1"
 
 
 def main() -> None:
-    import gymnasium as gym
-
-    import ipp_bench.envs  # noqa: F401
     from ipp_bench.belief import GPBelief, normalised_innovation
+    from ipp_bench.envs import make_env
     from ipp_bench.planners.episode import fly_episode
     from ipp_bench.sensor import stack
 
@@ -49,7 +47,7 @@ def main() -> None:
     p.add_argument("--seeds", type=int, default=5)
     args = p.parse_args()
     limit_blas_threads()
-    env = gym.make(TASK).unwrapped
+    env = make_env(TASK)
     cfg = env.config
     print(f"# bench_camera_error: {TASK}, seeds 0..{args.seeds - 1}, load {os.getloadavg()[0]:.1f}")
     per_factor = defaultdict(list)

@@ -12,11 +12,10 @@ import os
 import platform
 import time
 
-import gymnasium as gym
 import numpy as np
 
-import ipp_bench.envs  # noqa: F401
 from ipp_bench._threads import limit_blas_threads
+from ipp_bench.envs import make_env
 
 
 def median_time(fn, repeat: int) -> float:
@@ -30,7 +29,7 @@ def median_time(fn, repeat: int) -> float:
 
 def bench_size(task: str, n: int, steps: int) -> dict[str, float]:
     t0 = time.perf_counter()
-    env = gym.make(task, rows=n, cols=n, budget_s=1e6).unwrapped
+    env = make_env(task, rows=n, cols=n, budget_s=1e6)
     build_s = time.perf_counter() - t0
     obs, _ = env.reset(seed=0)
     mission = env.mission

@@ -34,9 +34,7 @@ TASK = "ipp_bench/MuJoCoWeed15-v1"
 
 
 def main() -> None:
-    import gymnasium as gym
-
-    import ipp_bench.envs  # noqa: F401
+    from ipp_bench.envs import make_env
     from ipp_bench.planners.episode import fly_episode
     from ipp_bench.sim.world import SimConfig
 
@@ -47,7 +45,7 @@ def main() -> None:
     args = p.parse_args()
     limit_blas_threads()
     modes = ("camera",) if args.no_truth else ("camera", "truth")
-    envs = {mode: gym.make(TASK, sim=SimConfig(measurement=mode)).unwrapped for mode in modes}
+    envs = {mode: make_env(TASK, sim=SimConfig(measurement=mode)) for mode in modes}
     times = envs["camera"].config.mission.report_times
     print(f"# bench_deployment: {TASK}, seeds 0..{args.seeds - 1}, load {os.getloadavg()[0]:.1f}")
     all_nis, all_dof = 0.0, 0

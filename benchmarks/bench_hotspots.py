@@ -21,9 +21,9 @@ import time
 import numpy as np
 
 from ipp_bench import gp_fit
-from ipp_bench.envs import task_config
+from ipp_bench.envs import make_env, task_config
 from ipp_bench.eval.plan import episode_seeds
-from ipp_bench.eval.runner import make_env, run_episode
+from ipp_bench.eval.runner import run_episode
 
 
 def main() -> None:

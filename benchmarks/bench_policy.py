@@ -28,19 +28,16 @@ import time
 
 import numpy as np
 
-
 TASKS = (("ipp_bench/Grid15Eval-v1", 450), ("ipp_bench/Grid20Eval-v1", 800), ("ipp_bench/Grid30Eval-v1", 1800))
 
 
 def _decisions(planner_spec: str, task: str, n: int, seed: int = 0) -> np.ndarray:
     """Seconds per ``act`` call over ``n`` decisions of real episodes."""
-    import gymnasium as gym
-
-    import ipp_bench.envs  # noqa: F401 - registers the tasks
+    from ipp_bench.envs import make_env
     from ipp_bench.planners import make_planner
     from ipp_bench.planners.base import RobotView
 
-    env = gym.make(task)
+    env = make_env(task)
     planner = make_planner(planner_spec)
     times: list[float] = []
     ep = 0
@@ -97,9 +94,10 @@ def bench_training(args) -> list[dict]:
     import torch
     from sb3_contrib import MaskablePPO
 
+    from ipp_bench.envs import make_env
     from ipp_bench.policies.network import AttentionNet
     from ipp_bench.policies.sb3 import AttentionPolicy
-    from ipp_bench.policies.train import TrainArgs, _vec_env, make_env
+    from ipp_bench.policies.train import TrainArgs, _vec_env
     from ipp_bench.policies.warmstart import BCDataset, collect_episodes, fit_bc, make_expert
 
     cfg = TrainArgs(n_envs=5, n_steps=128, n_epochs=args.n_epochs, batch_size=128)

@@ -60,13 +60,11 @@ def tracking(rotor_model: str, disturbed: bool) -> tuple[np.ndarray, float]:
 
 
 def missions(rotor_model: str, planners: list[str], seeds: int) -> dict:
-    import gymnasium as gym
-
-    import ipp_bench.envs  # noqa: F401
+    from ipp_bench.envs import make_env
     from ipp_bench.planners.episode import fly_episode
     from ipp_bench.sim.world import SimConfig
 
-    env = gym.make(TASK, sim=SimConfig(rotor_model=rotor_model)).unwrapped
+    env = make_env(TASK, sim=SimConfig(rotor_model=rotor_model))
     out = {}
     for planner in planners:
         for seed in range(seeds):

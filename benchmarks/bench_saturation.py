@@ -32,7 +32,8 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
 from ipp_bench.belief import GPBelief, LegBatch, trace_reductions
-from ipp_bench.eval.runner import make_env, run_episode
+from ipp_bench.envs import make_env
+from ipp_bench.eval.runner import run_episode
 from ipp_bench.planners import RobotView, register
 from ipp_bench.planners.greedy import GreedyPlanner
 from ipp_bench.sensor import stack

@@ -46,7 +46,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ipp_bench.eval.runner import make_env, run_episode
+from ipp_bench.envs import make_env
+from ipp_bench.eval.runner import run_episode
 from ipp_bench.planners import register
 from ipp_bench.planners.far import FarTargets, duration_graph, far_move, far_scores
 from ipp_bench.planners.greedy import GreedyPlanner, greedy_scores

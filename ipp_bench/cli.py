@@ -240,7 +240,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             require_figure()  # before the episode, not after it
         spec = canonical_spec(args.planner)
         planner = make_planner(spec)  # a planner that cannot be built here fails now, with its message
-        from .eval.runner import make_env, run_episode
+        from .envs import make_env
+        from .eval.runner import run_episode
         from .planners.episode import start_episode
 
         task_env = make_env(task, **env)

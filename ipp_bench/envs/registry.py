@@ -258,6 +258,23 @@ def resolve_task(name: str) -> str:
     return task_spec(name).id
 
 
+def make_env(task: str, *, render: bool = False, **overrides: Any):
+    """The environment of a task: the one way the package makes one (the leaderboard, ``ipp-bench
+    evaluate``, training, the demo, the dm_control view and the calibration all call it).
+
+    Args:
+        task: a task id, an id without the ``ipp_bench/`` prefix, or a task file path
+            (:func:`resolve_task`).
+        render: ``render_mode="rgb_array"`` (the MuJoCo tasks' camera frames).
+        **overrides: config fields by name, as ``gym.make(task, **overrides)``.
+
+    Raises:
+        ValueError: unknown task, or an override that names no field or has a bad value.
+    """
+    env = gym.make(resolve_task(task), render_mode="rgb_array" if render else None, **overrides)
+    return env.unwrapped  # the tasks are registered without gymnasium's checker and wrappers
+
+
 def short_task_id(task_id: str) -> str:
     """``"ipp_bench/Grid15Eval-v0"`` -> ``"Grid15Eval-v0"`` (tables, file names)."""
     return task_id.removeprefix(NAMESPACE + "/")

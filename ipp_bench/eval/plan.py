@@ -414,8 +414,8 @@ def check_episode_starts(tasks: Sequence[str], planners: dict[str, Any], seed: i
         ValueError: naming task and planner: a start that pays for no first move, a planner that
             refuses the task (an attention checkpoint made for another ``pe_dim``), ...
     """
+    from ..envs import make_env
     from ..planners.episode import start_episode
-    from .runner import make_env
 
     for task in tasks:
         env = make_env(task, **env_overrides)

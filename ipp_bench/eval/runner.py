@@ -2,21 +2,13 @@
 
 The loop itself is :func:`ipp_bench.planners.episode.fly_episode`, shared with the MuJoCo demo
 and the training code's validation; this module adds what the command line needs around it:
-making the task's env and saving the episode's figure.
+the task's env (:func:`ipp_bench.envs.make_env`) and saving the episode's figure.
 """
 
 from __future__ import annotations
 
-import gymnasium as gym
-
-import ipp_bench.envs  # noqa: F401  (registers the tasks)
-
+from ..envs import make_env
 from ..planners.episode import Decision, EpisodeResult, fly_episode
-
-
-def make_env(task: str, render: bool = False, **overrides):
-    """The unwrapped environment of a task (planners drive it directly)."""
-    return gym.make(task, render_mode="rgb_array" if render else None, **overrides).unwrapped
 
 
 def run_episode(task: str, planner: str, seed: int, env=None, render_path: str | None = None,
@@ -38,4 +30,4 @@ def run_episode(task: str, planner: str, seed: int, env=None, render_path: str |
     return result
 
 
-__all__ = ["Decision", "EpisodeResult", "make_env", "run_episode"]
+__all__ = ["Decision", "EpisodeResult", "run_episode"]

@@ -73,7 +73,7 @@ import torch
 from ipp_bench._threads import available_cpus, keep_freed_memory
 from ipp_bench.config import check_integer, check_number
 from ipp_bench.data import check_output_dir
-from ipp_bench.envs.registry import parse_overrides
+from ipp_bench.envs.registry import make_env, parse_overrides
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, RATE_NODE_DIM, SKIP_TEACHERS, gain_feature_wrapper
 from ipp_bench.policies.network import AttentionNet, NetConfig
@@ -387,14 +387,6 @@ def set_threads(n: int = 0) -> int:
 # ------------------------------------------------------------------------------------------------
 # Environments and experts
 # ------------------------------------------------------------------------------------------------
-def make_env(task: str, **overrides: Any):
-    import gymnasium as gym
-
-    import ipp_bench.envs  # noqa: F401 - registers the tasks
-
-    return gym.make(task, **overrides)
-
-
 def make_train_env(cfg: TrainArgs, index: int = 0):
     """Environment ``index``'s training task (``cfg.tasks[index % n]``) with the run's ``--env``
     overrides (and the look-gain, or rate, feature if asked for)."""
@@ -442,7 +434,7 @@ def _fly_validation(planner: Any, task: str, episodes: int, seed0: int,
                     overrides: dict[str, Any] | None) -> dict[str, float]:
     from ipp_bench.planners.episode import fly_episode
 
-    env = make_env(task, **(overrides or {})).unwrapped
+    env = make_env(task, **(overrides or {}))
     return _val_figures([fly_episode(env, planner, seed0 + i).report for i in range(episodes)])
 
 
@@ -581,8 +573,8 @@ def versions() -> dict[str, str]:
     """Versions of what a checkpoint was trained with."""
     import platform
 
-    import stable_baselines3
     import sb3_contrib
+    import stable_baselines3
 
     import ipp_bench
 

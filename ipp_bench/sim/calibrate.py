@@ -225,13 +225,11 @@ def fly_calibration_missions(task_id: str, n_fields: int, planners=CALIBRATION_P
                              verbose: bool = True, budget_s: float | None = None) -> list[tuple[list[tuple[list, list, float]], np.ndarray]]:
     """Full missions of ``planners`` on ``n_fields`` calibration episodes: each mission's Kalman
     batches ``(read-outs, values, time)`` as fused (:attr:`MuJoCoMission.update_log`) and its truth."""
-    import gymnasium as gym
-
-    import ipp_bench.envs  # noqa: F401  (registers the tasks)
+    from ipp_bench.envs import make_env
     from ipp_bench.planners.episode import fly_episode
 
     budget = {} if budget_s is None else {"budget_s": float(budget_s)}
-    env = gym.make(task_id, episode_seeds=CALIBRATION_EPISODES, **budget).unwrapped
+    env = make_env(task_id, episode_seeds=CALIBRATION_EPISODES, **budget)
     out = []
     t0 = time.perf_counter()
     try:

@@ -37,14 +37,12 @@ def load(task_id: str = DEFAULT_TASK, *, seed: int | None = 0, **overrides: Any)
     Raises:
         ValueError: ``task_id`` is not a MuJoCo deployment task, or an override is invalid.
     """
-    import gymnasium as gym
-
     import ipp_bench.envs as envs
 
     spec = envs.task_spec(task_id)
     if "deployment" not in spec.tags:  # the MuJoCo tasks carry the tag
         raise ValueError(f"task {task_id!r} is not a MuJoCo deployment: valid are {envs.tagged('deployment')}")
-    task = gym.make(spec.id, **overrides).unwrapped
+    task = envs.make_env(spec.id, **overrides)
     task.seed_episodes(seed)
     return control.Environment(task.world.scene.physics, task, n_sub_steps=1)
 

@@ -24,18 +24,14 @@ import numpy as np
 # -- episodes ------------------------------------------------------------------------------------
 def make_sim_env(task: str, budget: float | None = None):
     """The unwrapped environment of ``task``; it must be a MuJoCo task (entry point in ``ipp_bench.sim``)."""
-    import gymnasium as gym
-
     import ipp_bench.envs as envs
 
-    if "/" not in task:
-        task = f"{envs.registry.NAMESPACE}/{task}"
     spec = envs.task_spec(task)
     if "deployment" not in spec.tags:  # the MuJoCo tasks carry the tag
         deploy = envs.tagged("deployment")
-        raise ValueError(f"task {task!r} is not simulated in MuJoCo: the demo needs one of {deploy}")
+        raise ValueError(f"task {spec.id!r} is not simulated in MuJoCo: the demo needs one of {deploy}")
     overrides = {} if budget is None else {"budget_s": float(budget)}
-    return gym.make(task, **overrides).unwrapped
+    return envs.make_env(spec.id, **overrides)
 
 
 # -- video ---------------------------------------------------------------------------------------

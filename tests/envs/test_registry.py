@@ -84,6 +84,16 @@ def test_task_lookup_and_overrides():
         envs.parse_overrides(["budget_s"])
 
 
+def test_make_env_is_the_one_way_to_a_tasks_env():
+    """A short id resolves to the task's bare env; overrides and their errors as gym.make's."""
+    env = envs.make_env("Grid15Eval-v1", budget_s=60.0)
+    assert isinstance(env, envs.GraphIPPEnv) and env.config.mission.budget_s == 60.0
+    with pytest.raises(ValueError, match="unknown task 'Nope-v1'"):
+        envs.make_env("Nope-v1")
+    with pytest.raises(ValueError, match="budget_s"):
+        envs.make_env("Grid15Eval-v1", budget_s=-1.0)
+
+
 # -- task files (issue 19) --------------------------------------------------------------------------
 import shutil  # noqa: E402
 import subprocess  # noqa: E402
@@ -143,7 +153,7 @@ def test_a_users_task_file_loads_from_anywhere_and_runs(tmp_path, registry_resto
                                                                                       "budget_s = 30.0"))
     task = load_task(path)
     assert task == "ipp_bench/MyGrid-v0" and load_task(path) == task  # idempotent
-    env = gym.make(task).unwrapped
+    env = envs.make_env(str(path))  # the file's path stands for its task
     env.reset(seed=0)
     assert env.config.mission.budget_s == 30.0
     other = _write(tmp_path, "other", GOOD.replace("Grid15Eval-v1", "MyGrid-v0"))

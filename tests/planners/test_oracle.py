@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ipp_bench.eval.runner import make_env
+from ipp_bench.envs import make_env
 from ipp_bench.planners import (
     REFERENCE_PLANNERS,
     RobotView,

@@ -5,7 +5,8 @@ import os
 import numpy as np
 import pytest
 
-from ipp_bench.eval.runner import make_env, run_episode
+from ipp_bench.envs import make_env
+from ipp_bench.eval.runner import run_episode
 from ipp_bench.planners import RobotView, make_config, make_planner, parse_spec, planner_names
 from ipp_bench.planners.episode import fly_episode
 

@@ -160,12 +160,18 @@ class TrainArgs:
     bc_lr: float = opt(3e-4, "warm-start learning rate", WARM)
     bc_temperature: float = opt(0.1, "soft targets p ~ exp((score/best - 1)/T) from the expert's scores; "
                                      "0 = one-hot on its action", WARM)
-    val_task: str = opt("", "task of the validation episodes (seeds 10,000,000 onwards, held out of "
-                            "training); '' = the training task", VAL)
+    val_task: list[str] = opt([], "a task of the validation episodes (seeds 10,000,000 onwards, held out of "
+                                  "training; repeatable, e.g. a training task of every map size: the "
+                                  "network is exported at the best mean over them); none = the training tasks", VAL)
     eval_every: int = opt(20_000, "validation period [steps] (also after the warm start)", VAL)
     eval_episodes: int = opt(16, "validation episodes", VAL)
     checkpoint_every: int = opt(20_000, "keep a numbered checkpoint every this many steps", VAL)
     progress: bool = opt(True, "draw a progress bar (SB3's ProgressBarCallback)", VAL)
+
+    def __post_init__(self) -> None:
+        # a run folder of an earlier version holds one task or '' (the recorded commands: --val-task '')
+        given = [self.val_task] if isinstance(self.val_task, str) else list(self.val_task)
+        self.val_task = [t for t in given if t]
 
     def net_config(self) -> NetConfig:
         if self.rate_skip:
@@ -338,8 +344,9 @@ def _check(cfg: TrainArgs) -> None:
         raise ValueError(f"--skip-teacher {cfg.skip_teacher} needs --rate-skip (the score is the rate feature)")
     if len(set(cfg.tasks)) != len(cfg.tasks):
         raise ValueError(f"--mix {cfg.mix}: a task is named twice (with --task {cfg.task})")
-    if cfg.val_task and cfg.val_task not in gym.registry:
-        raise ValueError(f"--val-task {cfg.val_task!r} is not a registered task")
+    for task in cfg.val_task:
+        if task not in gym.registry:
+            raise ValueError(f"--val-task {task!r} is not a registered task")
     roadmap = None
     for i, task in enumerate(cfg.tasks):
         try:
@@ -448,7 +455,7 @@ def _val_figures(reports: list) -> dict[str, float]:
 
 def _val_tasks(cfg: TrainArgs) -> list[tuple[str, dict[str, Any]]]:
     if cfg.val_task:
-        return [(cfg.val_task, {})]
+        return [(t, {}) for t in cfg.val_task]
     return [(t, parse_overrides(cfg.env)) for t in cfg.tasks]
 
 
@@ -589,7 +596,7 @@ def _meta(cfg: TrainArgs, state: dict, steps: int, val: dict) -> dict:
             "seeds": {"seed": cfg.seed, "warm_start_episode_seeds": _warm_start_seeds(cfg),
                       "ppo_episode_seeds": "drawn by the environments' generators, seeded by --seed (SB3 set_random_seed)",
                       "validation_seeds": f"{VAL_SEED0}..{VAL_SEED0 + cfg.eval_episodes - 1} of "
-                                          f"{cfg.val_task or ', '.join(cfg.tasks)}"},
+                                          f"{', '.join(cfg.val_task or cfg.tasks)}"},
             "versions": versions(), "device": cfg.device, "threads": cfg.threads,
             "ppo_wall_s": round(state.get("ppo_wall_s", 0.0), 1),
             "warm_start_wall_s": round(state.get("bc_wall_s", 0.0), 1), **val}

@@ -94,6 +94,24 @@ def test_command_line_round_trips_through_the_parser():
     assert again == cfg
 
 
+def test_val_task_is_repeatable_and_reads_earlier_run_folders():
+    import argparse
+
+    from ipp_bench.policies.train import _val_tasks
+
+    parser = add_train_arguments(argparse.ArgumentParser())
+    ns = parser.parse_args(["--val-task", "ipp_bench/Grid15Train-v1", "--val-task", "ipp_bench/Grid30Train-v1"])
+    cfg = TrainArgs(val_task=ns.val_task)
+    assert [t for t, _ in _val_tasks(cfg)] == ["ipp_bench/Grid15Train-v1", "ipp_bench/Grid30Train-v1"]
+    assert command_line(cfg).count("--val-task") == 2
+    # the recorded commands of earlier checkpoints (--val-task '') and their config.json ("val_task": "")
+    assert TrainArgs(val_task=parser.parse_args(["--val-task", ""]).val_task).val_task == []
+    assert TrainArgs(val_task="").val_task == [] and TrainArgs(val_task="ipp_bench/Grid30Train-v1").val_task == [
+        "ipp_bench/Grid30Train-v1"]
+    assert [t for t, _ in _val_tasks(TrainArgs(mix=["ipp_bench/Hotspots15Train-v2"]))] == [
+        "ipp_bench/Grid15Train-v1", "ipp_bench/Hotspots15Train-v2"]
+
+
 def test_soft_targets():
     import numpy as np
 
@@ -211,6 +229,8 @@ def test_mix_and_skip_teacher_are_checked_before_the_run_folder(tmp_path, capsys
         (["--mix", "ipp_bench/Nope-v1"], "--mix 'ipp_bench/Nope-v1' is not a registered task"),
         (["--mix", "ipp_bench/Grid15-v0"], "named twice"),
         (["--skip-teacher", "far"], "--skip-teacher far needs --rate-skip"),
+        (["--val-task", "ipp_bench/Grid30Train-v1", "--val-task", "ipp_bench/Nope-v1"],
+         "--val-task 'ipp_bench/Nope-v1' is not a registered task"),
     ]
     _refused_in_one_line(cases, tmp_path, capsys)
     with pytest.raises(SystemExit):  # argparse: not one of the choices

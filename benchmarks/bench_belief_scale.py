@@ -1,7 +1,7 @@
 """The dense GP belief and the windowed one (issue 20) side by side at growing map sizes.
 
 Prints figures, never pass/fail. Run: ``python benchmarks/bench_belief_scale.py [--sizes 15 30 50 128]
-[--task ipp_bench/Hotspots30Eval-v2] [--alternatives] [--agreement] [--seeds 3]``.
+[--task ipp_bench/Hotspots30Eval-v2] [--alternatives] [--agreement] [--seeds 3] [--flight 3000]``.
 
 * Speed and memory (every size): the median of a measurement update of one read-out at 8 m and at
   14 m (successive read-outs at random places, so the belief changes), the median of one greedy
@@ -13,6 +13,8 @@ Prints figures, never pass/fail. Run: ``python benchmarks/bench_belief_scale.py 
   ``Grid30Eval-v1`` and ``Hotspots30Eval-v2`` replayed into both beliefs (max relative variance
   error, max |mean difference|), greedy's decisions scored with both beliefs (share identical), and
   a random mixed-altitude flight on 50 x 50.
+* ``--flight N``: N looks of a random-walk flight on 128 x 128 (update, variances and ROI trace after
+  each; the process's peak memory at the end).
 The task gives the prior (length scale, variances), the camera and the grid's cell side.
 """
 
@@ -259,6 +261,37 @@ def _agreement_50(args) -> None:
               f"var {v:.3f} %  mean {m:.5f}")
 
 
+def long_flight(args, cfg) -> None:
+    """A whole large-map episode's belief work: ``--flight`` looks of a random walk (7.5 m steps, 8 or
+    14 m) over the 128 x 128 map, each fused and followed by what the mission computes after an
+    update (the variances and the ROI trace); revisits are many, as in a long flight."""
+    gp, res, size = cfg.gp, cfg.grid.resolution, 128
+    sensor = Sensor(GridConfig(rows=size, cols=size, resolution=res), cfg.sensor)
+    rng = np.random.default_rng(1)
+    b = WindowBelief.from_grid((size, size), res, gp.length_scale, gp.signal_variance, gp.prior_mean, gp.nugget)
+    roi = rng.random(b.n) < 0.1
+    xy, span = np.full(2, size * res / 2), size * res
+    upd, post = [], []
+    t_all = time.perf_counter()
+    for _ in range(args.flight):
+        step = rng.normal(size=2)
+        xy = np.clip(xy + 7.5 * step / np.linalg.norm(step), 1.0, span - 1.0)
+        o = sensor.observe((*xy, float(rng.choice([8.0, 14.0]))))
+        t0 = time.perf_counter()
+        b.update_local(o.cells, o.weights, gp.prior_mean + rng.normal(0, 0.1, o.m), o.var)
+        t1 = time.perf_counter()
+        M.trace_roi(b.variance, roi)
+        post.append(time.perf_counter() - t1)
+        upd.append(t1 - t0)
+    total = time.perf_counter() - t_all
+    var = b.variance
+    print(f"\n128 x 128, {args.task.split('/')[-1]} prior, window w={b.window}: a random-walk flight of {args.flight} "
+          f"looks: update median {1e3 * np.median(upd):.2f} ms (p90 {1e3 * np.percentile(upd, 90):.2f}, "
+          f"max {1e3 * np.max(upd):.2f}), variances + ROI trace after it {1e3 * np.median(post):.2f} ms, "
+          f"total {total:.1f} s; belief {b.nbytes / 1e6:.0f} MB; least variance {var.min() / gp.signal_variance:.3f} "
+          f"of the prior's, {100 * np.mean(var < 0.5 * gp.signal_variance):.0f} % of the cells below half of it")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", type=int, nargs="+", default=[15, 30, 50, 128])
@@ -271,6 +304,7 @@ def main() -> None:
     parser.add_argument("--windows", type=int, nargs="*", default=[], help="more windows [cells] for --agreement")
     parser.add_argument("--seeds", type=int, default=3, help="episodes per task and planner for --agreement")
     parser.add_argument("--no-speed", action="store_true", help="skip the speed table")
+    parser.add_argument("--flight", type=int, default=0, help="looks of a long random flight on 128 x 128 (0: none)")
     args = parser.parse_args()
     limit_blas_threads()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
@@ -278,6 +312,8 @@ def main() -> None:
           f"load {os.getloadavg()[0]:.2f}")
     if not args.no_speed:
         speed(args, task_config(args.task))
+    if args.flight:
+        long_flight(args, task_config(args.task))
     if args.agreement:
         agreement(args)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -205,3 +205,27 @@ def test_bad_input_is_one_clear_value_error(bad, match):
         b.update_local(args["cells"], args["W"], args["z"], args["R"])
     with pytest.raises(ValueError, match="window = 0 is invalid"):
         WindowBelief.from_grid((12, 12), 2.5, 6.931, 0.01789, window=0)
+
+
+def test_a_mission_runs_on_the_window_belief():
+    """The mission's interface (``update_local`` through its belief model, ``mean``, ``variance``):
+    the same flight with the same noise gives the dense belief's report within the tolerances."""
+    from ipp_bench.envs import task_config
+    from ipp_bench.mission import Mission
+
+    cfg = task_config("ipp_bench/Hotspots30Eval-v2")
+    g, gp = cfg.grid, cfg.gp
+    truth = np.clip(np.random.default_rng(0).normal(0.05, 0.2, (g.rows, g.cols)), 0.0, 1.0)
+    missions = [Mission(cfg, truth, np.random.default_rng(1), (5.0, 5.0, 14.0), belief=belief)
+                for belief in (GPBelief.prior(g, gp), WindowBelief.prior(g, gp))]
+    for x, y, h in [(70, 5, 8), (70, 20, 14), (5, 20, 14), (5, 40, 8), (70, 60, 8)]:
+        for m in missions:
+            m.fly_to((float(x), float(y), float(h)))
+    dense, win = (m.belief for m in missions)
+    assert missions[0].n_measurements == missions[1].n_measurements > 300
+    assert np.abs(win.variance / dense.variance - 1).max() <= 0.02
+    assert np.abs(win.mean - dense.mean).max() <= 0.01
+    for a, b in zip(missions[0].report(), missions[1].report()):
+        assert a.keys() == b.keys()
+        for key in a:
+            assert b[key] == pytest.approx(a[key], rel=1e-3, abs=1e-2), key

@@ -292,23 +292,41 @@ class WindowBelief:
         var[N] = np.maximum(var[N] - np.einsum("ij,ij->i", A, A), 0.0)
         return var
 
-    def trace_reductions(self, batch: LegBatch, roi: np.ndarray) -> np.ndarray:
-        """For every leg of ``batch``: Tr(P - P+) over the cells ``roi`` (bool mask (n,)), each leg's
-        rows fused as one batch; 0 for legs that see nothing. :func:`ipp_bench.belief.trace_reductions`
-        on the windowed covariance."""
+    def trace_reductions(self, legs, roi: np.ndarray) -> np.ndarray:
+        """For every leg: Tr(P - P+) over the cells ``roi`` (bool mask (n,)), each leg's rows fused as
+        one batch; 0 for legs that see nothing. :func:`ipp_bench.belief.trace_reductions` on the
+        windowed covariance.
+
+        Args:
+            legs: a :class:`~ipp_bench.belief.LegBatch`, or a sequence of ``(cells, W, var)`` or None
+                per leg (what ``LegBatch`` is built from: on a large map the batch's padded
+                (legs, rows, union of cells) weights grow with the union, the list does not).
+            roi: (n,) bool.
+        """
         roi = np.asarray(roi, dtype=bool).reshape(-1)
         if roi.shape != (self.n,):
             raise ValueError(f"roi has shape {roi.shape}: expected ({self.n},) booleans")
-        out = np.zeros(batch.size)
-        for j, i in enumerate(batch.index):
-            Wj = batch.W[j]
-            rows = np.flatnonzero(np.any(Wj != 0.0, axis=1))
-            used = np.flatnonzero(np.any(Wj[rows] != 0.0, axis=0))
-            cells = batch.cells[used]
-            _, N, _, _, A = self._gain(cells, Wj[np.ix_(rows, used)], np.diag(batch.var[j, rows]))
+        per_leg = _batch_legs(legs) if isinstance(legs, LegBatch) else list(legs)
+        out = np.zeros(len(per_leg))
+        for i, leg in enumerate(per_leg):
+            if leg is None:
+                continue
+            cells, W, _, var = self._checked(leg[0], leg[1], np.zeros(np.atleast_2d(leg[1]).shape[0]), leg[2])
+            _, N, _, _, A = self._gain(cells, W, np.diag(var) if var.ndim == 1 else var)
             sel = roi[N]
             out[i] = np.einsum("ij,ij->", A[sel], A[sel])
         return out
+
+
+def _batch_legs(batch: LegBatch) -> list:
+    """The legs of a LegBatch as ``(cells, W, var)`` or None, its padding rows and columns dropped."""
+    legs: list = [None] * batch.size
+    for j, i in enumerate(batch.index):
+        Wj = batch.W[j]
+        rows = np.flatnonzero(np.any(Wj != 0.0, axis=1))
+        used = np.flatnonzero(np.any(Wj[rows] != 0.0, axis=0))
+        legs[i] = (batch.cells[used], Wj[np.ix_(rows, used)], batch.var[j, rows])
+    return legs
 
 
 def _inside(size: int, w: int) -> np.ndarray:

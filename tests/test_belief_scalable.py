@@ -160,10 +160,12 @@ def test_trace_reductions_agree_with_dense(prior):
         dense.update_local(cells, W, z, var)
         win.update_local(cells, W, z, var)
     sensor = Sensor(GridConfig(rows=30, cols=30, resolution=2.5), V1_CAMERA)
-    batch = LegBatch(_legs(sensor, rng, 12))
+    legs = _legs(sensor, rng, 12)
+    batch = LegBatch(legs)
     roi = rng.random(900) < 0.5
     ref = trace_reductions(dense.cov, batch, roi)
     got = win.trace_reductions(batch, roi)
+    np.testing.assert_allclose(win.trace_reductions(legs, roi), got, rtol=1e-12)  # the list form
     assert got[-1] == 0.0 and ref[-1] == 0.0
     np.testing.assert_allclose(got[:-1], ref[:-1], rtol=0.02)
     assert np.argmax(got) == np.argmax(ref)

@@ -182,6 +182,7 @@ def record_episode(task: str, planner: str, seed: int, compare_decisions: bool):
 
     agent = Compared() if (planner == "greedy" and compare_decisions) else planner
     fly_episode(env, agent, seed)
+    del env._make_mission  # the closure refers to env: no cycle keeps its roadmap and leg caches alive
     return batches, same, (env.mission.belief, win)
 
 

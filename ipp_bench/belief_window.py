@@ -39,6 +39,7 @@ from .belief import LegBatch, _as_cov, matern32
 
 WINDOW_LENGTH_SCALES = 4.0  # [-] the window covers this many length scales (prior correlation 0.8 % there)
 DEFAULT_GROUP_SPAN = 8  # [cells] largest bounding box side of the rows fused in one update
+MASK_CACHE = 32  # window masks kept (one per rectangle shape; 0.6 MB each at w = 12)
 
 
 def window_for(length_scale: float, resolution: float) -> int:
@@ -107,8 +108,9 @@ class WindowBelief:
 
     @property
     def nbytes(self) -> int:
-        """Memory of the belief's arrays [bytes]."""
-        return self.mean.nbytes + self.band.nbytes
+        """Memory of the belief [bytes]: its arrays, the update's scratch and the cached masks."""
+        scratch = 0 if self._buf is None else self._buf.nbytes
+        return self.mean.nbytes + self.band.nbytes + scratch + sum(m.nbytes for m in self._masks.values())
 
     @property
     def variance(self) -> np.ndarray:
@@ -222,7 +224,7 @@ class WindowBelief:
             w = self.window
             mask = _inside(nr, w)[:, None, :, None] & _inside(nc, w)[None, :, None, :]
             mask.flags.writeable = False
-            if len(self._masks) > 256:
+            if len(self._masks) >= MASK_CACHE:
                 self._masks.clear()
             self._masks[(nr, nc)] = mask
         return mask

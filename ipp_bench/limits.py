@@ -1,15 +1,18 @@
 """Size limits of an IPP problem, checked from its config before anything is built.
 
 Every field of :mod:`ipp_bench.config` is valid on its own; some combinations are not affordable:
-a map so large that the roadmap's dense Laplacian (the positional encoding) or the belief's
-covariance does not fit in memory, a measurement spacing or altitude range that puts hundreds of
-thousands of measurements into one leg's update, or a budget and speed that make an episode of
-millions of legs. :func:`check_sizes` estimates each from the config alone and refuses the
-config with one line naming the fields, what it would need and the limit, so that the mistake
-costs nothing (the env calls it first, before the roadmap is built).
+a map so large that the roadmap's positional encoding or the dense belief's covariance does not
+fit in memory, a measurement spacing or altitude range that puts hundreds of thousands of
+measurements into one leg's update, or a budget and speed that make an episode of millions of
+legs. :func:`check_sizes` estimates each from the config alone and refuses the config with one
+line naming the fields, what it would need and the limit, so that the mistake costs nothing (the
+env calls it first, before the roadmap is built).
 
 The limits are far above every task of the suite (the largest, 30 x 30 cells, needs ~26 MiB for
-its Laplacian and at most a few MiB per leg update) and well below what a workstation has.
+its Laplacian and at most a few MiB per leg update) and well below what a workstation has. A
+128 x 128 map (issue 20) passes the roadmap and encoding check (the sparse eigensolver, ~0.2 GB)
+and is refused by the dense belief's, which names the scalable belief,
+:class:`ipp_bench.belief_window.WindowBelief`.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from __future__ import annotations
 import math
 
 from .config import IPPConfig
+from .roadmap import DENSE_ENCODING_MAX_NODES
 from .sensor import Sensor
 
 #: [bytes] the largest single array an estimate may reach (dense Laplacian, covariance, leg update)
@@ -28,6 +32,15 @@ MAX_DECISIONS = 100_000
 MAX_FLIGHT_CELLS = MAX_DECISIONS
 
 _FLOAT = 8  # bytes of a float64
+#: [-] float64 arrays of n x n that building the dense prior holds at once (distances, the Matern
+#: kernel's temporaries, the belief's copy): tracemalloc's peak of ``GPBelief.from_grid`` is 5.00 n^2
+#: floats on 30 x 30 and 50 x 50 cells
+DENSE_BELIEF_ARRAYS = 5
+#: the sparse encoding's LU: ~``_LU_FILL`` k N^0.25 factor entries per node (SuperLU, minimum degree
+#: on A + A^T, symmetric mode), fitted on grid roadmaps of 48 x 48 to 181 x 181 cells x 2 levels
+#: (180 to 337 per node at k = 20) and checked on 3 levels, k = 40 and uniform sampling (all below)
+_LU_FILL = 1.1
+_LU_ENTRY = 16  # [bytes] per factor entry: value, index and SuperLU's own (peak RSS 174 MB at 128 x 128)
 
 
 def _gib(n_bytes: float) -> str:
@@ -64,6 +77,40 @@ def leg_update_rows(config: IPPConfig) -> tuple[int, float, int]:
     return samples * cells, longest, cells
 
 
+def encoding_bytes(config: IPPConfig) -> int:
+    """[bytes] the roadmap and its positional encoding at their peak, by the solver the roadmap uses.
+
+    Up to :data:`~ipp_bench.roadmap.DENSE_ENCODING_MAX_NODES` nodes, the dense N x N Laplacian; above
+    it the sparse solver: its LU (an empirical fill, see ``_LU_FILL``), ARPACK's 2 pe_dim + 1 Lanczos
+    vectors and the k-NN arrays. The estimate is 5-40 % above the process's measured peak on grid
+    roadmaps of 128 x 128 (2 and 3 levels, k = 20 and 40, grid and uniform) and 181 x 181 cells.
+    """
+    return _encoding_bytes(roadmap_nodes(config), config.graph.k, config.graph.pe_dim)
+
+
+def _encoding_bytes(nodes: int, k: int, dim: int) -> int:
+    if nodes <= DENSE_ENCODING_MAX_NODES:
+        return nodes**2 * _FLOAT
+    per_node = _LU_ENTRY * _LU_FILL * k * nodes**0.25 + _FLOAT * (2 * dim + 1 + 8) + _FLOAT * 3 * k
+    return int(nodes * per_node)
+
+
+def dense_belief_bytes(config: IPPConfig) -> int:
+    """[bytes] building the dense belief (:class:`~ipp_bench.belief.GPBelief`): its prior's peak."""
+    return DENSE_BELIEF_ARRAYS * belief_states(config) ** 2 * _FLOAT
+
+
+def _most(fn, limit: float) -> int:
+    """The largest n with fn(n) <= limit, fn increasing (bisection)."""
+    lo, hi = 1, 1
+    while fn(hi) <= limit:
+        lo, hi = hi, hi * 2
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if fn(mid) <= limit else (lo, mid)
+    return lo
+
+
 def check_sizes(config: IPPConfig) -> None:
     """Refuse a config whose episodes would not fit in memory or would not end.
 
@@ -72,18 +119,23 @@ def check_sizes(config: IPPConfig) -> None:
     """
     grid, graph, mission = config.grid, config.graph, config.mission
     nodes = roadmap_nodes(config)
-    need = nodes**2 * _FLOAT
+    need = encoding_bytes(config)
     if need > ARRAY_LIMIT_BYTES:
-        most = int(math.sqrt(ARRAY_LIMIT_BYTES / _FLOAT))
+        most = _most(lambda n: _encoding_bytes(n, graph.k, graph.pe_dim), ARRAY_LIMIT_BYTES)
         what = (f"grid.rows x grid.cols x len(graph.altitudes) = {grid.rows} x {grid.cols} x {len(graph.altitudes)}"
                 if graph.sampling == "grid" else f"graph.n_samples = {graph.n_samples}")
-        raise ValueError(f"{what} = {nodes} roadmap nodes is too large: the positional encoding's dense "
-                         f"Laplacian needs {_gib(need)} (limit {_gib(ARRAY_LIMIT_BYTES)}, at most {most} nodes)")
+        raise ValueError(f"{what} = {nodes} roadmap nodes is too large: the positional encoding's sparse "
+                         f"eigensolver (k = {graph.k}) needs about {_gib(need)} (limit {_gib(ARRAY_LIMIT_BYTES)}, "
+                         f"at most {most} nodes)")
     states = belief_states(config)
-    need = states**2 * _FLOAT
+    need = dense_belief_bytes(config)
     if need > ARRAY_LIMIT_BYTES:
-        raise ValueError(f"grid.rows x grid.cols = {grid.rows} x {grid.cols} cells is too large: the belief's "
-                         f"covariance of {states} states needs {_gib(need)} (limit {_gib(ARRAY_LIMIT_BYTES)})")
+        most = _most(lambda n: DENSE_BELIEF_ARRAYS * n**2 * _FLOAT, ARRAY_LIMIT_BYTES)
+        raise ValueError(
+            f"grid.rows x grid.cols = {grid.rows} x {grid.cols} cells is too large for the dense belief: its "
+            f"covariance of {states} states needs {_gib(states**2 * _FLOAT)}, {_gib(need)} while its prior is built "
+            f"(limit {_gib(ARRAY_LIMIT_BYTES)}, at most {most} states); a map this large needs the scalable belief "
+            "ipp_bench.belief_window.WindowBelief")
     rows, longest, cells = leg_update_rows(config)
     need = rows**2 * _FLOAT
     if need > ARRAY_LIMIT_BYTES:
@@ -105,5 +157,5 @@ def check_sizes(config: IPPConfig) -> None:
             "at this resolution")
 
 
-__all__ = ["ARRAY_LIMIT_BYTES", "MAX_DECISIONS", "MAX_FLIGHT_CELLS", "belief_states", "check_sizes", "leg_update_rows",
-           "roadmap_nodes"]
+__all__ = ["ARRAY_LIMIT_BYTES", "DENSE_BELIEF_ARRAYS", "MAX_DECISIONS", "MAX_FLIGHT_CELLS", "belief_states", "check_sizes",
+           "dense_belief_bytes", "encoding_bytes", "leg_update_rows", "roadmap_nodes"]

@@ -405,9 +405,10 @@ def test_what_an_episode_start_refuses_is_refused_before_run_json(extra, message
     (["--workers", "100000"], "workers = 100000 is invalid: expected an integer in [1, 256]"),
     (["--env", "measurement_spacing=1e-4"], "mission.measurement_spacing = 0.0001 m"),
     (["--env", "altitudes=[8,10000]"], "graph.altitudes = [8.0, 10000.0] is too fine"),
-    (["--env", "rows=100", "--env", "cols=100"], "= 20000 roadmap nodes is too large"),
+    (["--env", "rows=100", "--env", "cols=100"], "100 x 100 cells is too large for the dense belief"),
+    (["--env", "rows=400", "--env", "cols=400"], "= 320000 roadmap nodes is too large"),
     (["--env", "speed=1e6"], "mission.budget_s x mission.speed = 200 s x 1e+06 m/s"),
-], ids=["episodes", "workers", "measurement_spacing", "altitudes", "rows-cols", "speed"])
+], ids=["episodes", "workers", "measurement_spacing", "altitudes", "rows-cols", "rows-cols-encoding", "speed"])
 def test_a_size_beyond_its_bound_is_one_line_before_any_work(extra, message, capsys, tmp_path):
     out = tmp_path / "lb"
     t0 = time.perf_counter()
@@ -427,8 +428,43 @@ def test_the_size_limits_hold_every_task_of_the_suite():
 
 
 def test_gym_make_refuses_a_map_too_large_for_memory():
-    with pytest.raises(ValueError, match="roadmap nodes is too large.*GiB"):
+    with pytest.raises(ValueError, match="too large for the dense belief.*GiB.*WindowBelief"):
         gym.make(TASK, rows=100, cols=100)
+
+
+def test_a_dense_belief_too_large_is_one_line_before_any_allocation():
+    """128 x 128 (issue 20): the roadmap and encoding fit, the dense belief does not; said before allocating."""
+    import tracemalloc
+
+    from ipp_bench.limits import ARRAY_LIMIT_BYTES, check_sizes, dense_belief_bytes, encoding_bytes
+
+    config = ipp_bench.envs.task_config(TASK)
+    big = config.replace(rows=128, cols=128)
+    assert encoding_bytes(big) < 2**30 <= ARRAY_LIMIT_BYTES < dense_belief_bytes(big)  # the sparse encoding: < 1 GiB
+    tracemalloc.start()
+    with pytest.raises(ValueError) as err:
+        gym.make(TASK, rows=128, cols=128)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 50 * 2**20  # nothing of the map's size was allocated
+    assert str(err.value) == (
+        "grid.rows x grid.cols = 128 x 128 cells is too large for the dense belief: its covariance of 16384 states "
+        "needs 2 GiB, 10 GiB while its prior is built (limit 2 GiB, at most 7327 states); a map this large needs "
+        "the scalable belief ipp_bench.belief_window.WindowBelief")
+    check_sizes(config.replace(rows=85, cols=85))  # 7 225 states: the largest square map the dense belief takes
+
+
+def test_an_encoding_too_large_is_one_line_naming_its_memory_and_limit():
+    from ipp_bench.limits import check_sizes
+
+    config = ipp_bench.envs.task_config(TASK)
+    with pytest.raises(ValueError) as err:
+        check_sizes(config.replace(rows=1000, cols=1000))
+    assert str(err.value) == (
+        "grid.rows x grid.cols x len(graph.altitudes) = 1000 x 1000 x 2 = 2000000 roadmap nodes is too large: the "
+        "positional encoding's sparse eigensolver (k = 20) needs about 26.6 GiB (limit 2 GiB, at most 242059 nodes)")
+    with pytest.raises(ValueError, match=r"graph.n_samples = 400000 = 400000 roadmap nodes is too large: .* GiB \(limit"):
+        check_sizes(config.replace(sampling="uniform", n_samples=400_000))
 
 
 # -- no silent wrong results (issue 19) -----------------------------------------------------------

@@ -8,7 +8,7 @@ legs. :func:`check_sizes` estimates each from the config alone and refuses the c
 line naming the fields, what it would need and the limit, so that the mistake costs nothing (the
 env calls it first, before the roadmap is built).
 
-The limits are far above every task of the suite (the largest, 30 x 30 cells, needs ~26 MiB for
+The limits are far above every task of the suite (the largest, 30 x 30 cells, needs ~0.1 GiB for
 its Laplacian and at most a few MiB per leg update) and well below what a workstation has. A
 128 x 128 map (issue 20) passes the roadmap and encoding check (the sparse eigensolver, ~0.2 GB)
 and is refused by the dense belief's, which names the scalable belief,
@@ -40,6 +40,9 @@ DENSE_BELIEF_ARRAYS = 5
 #: on A + A^T, symmetric mode), fitted on grid roadmaps of 48 x 48 to 181 x 181 cells x 2 levels
 #: (180 to 337 per node at k = 20) and checked on 3 levels, k = 40 and uniform sampling (all below)
 _LU_FILL = 1.1
+#: [-] float64 arrays of N x N the dense encoding holds at its peak (adjacency, its transpose's maximum,
+#: the scaled products, the identity, L): 4.1 N^2 floats measured at 1 800 nodes (102 MB)
+_DENSE_LAPLACIAN_ARRAYS = 5
 _LU_ENTRY = 16  # [bytes] per factor entry: value, index and SuperLU's own (peak RSS 174 MB at 128 x 128)
 
 
@@ -80,7 +83,7 @@ def leg_update_rows(config: IPPConfig) -> tuple[int, float, int]:
 def encoding_bytes(config: IPPConfig) -> int:
     """[bytes] the roadmap and its positional encoding at their peak, by the solver the roadmap uses.
 
-    Up to :data:`~ipp_bench.roadmap.DENSE_ENCODING_MAX_NODES` nodes, the dense N x N Laplacian; above
+    Up to :data:`~ipp_bench.roadmap.DENSE_ENCODING_MAX_NODES` nodes, the dense N x N Laplacian's arrays; above
     it the sparse solver: its LU (an empirical fill, see ``_LU_FILL``), ARPACK's 2 pe_dim + 1 Lanczos
     vectors and the k-NN arrays. The estimate is 5-40 % above the process's measured peak on grid
     roadmaps of 128 x 128 (2 and 3 levels, k = 20 and 40, grid and uniform) and 181 x 181 cells.
@@ -90,7 +93,7 @@ def encoding_bytes(config: IPPConfig) -> int:
 
 def _encoding_bytes(nodes: int, k: int, dim: int) -> int:
     if nodes <= DENSE_ENCODING_MAX_NODES:
-        return nodes**2 * _FLOAT
+        return _DENSE_LAPLACIAN_ARRAYS * nodes**2 * _FLOAT
     per_node = _LU_ENTRY * _LU_FILL * k * nodes**0.25 + _FLOAT * (2 * dim + 1 + 8) + _FLOAT * 3 * k
     return int(nodes * per_node)
 

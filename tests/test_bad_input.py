@@ -19,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import ipp_bench.envs  # noqa: F401  (registers the tasks)
+import ipp_bench.envs  # registers the tasks
 from ipp_bench.cli import main
 
 TASK = "ipp_bench/Grid15Eval-v1"

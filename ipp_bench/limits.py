@@ -44,6 +44,7 @@ _LU_FILL = 1.1
 #: the scaled products, the identity, L): 4.1 N^2 floats measured at 1 800 nodes (102 MB)
 _DENSE_LAPLACIAN_ARRAYS = 5
 _LU_ENTRY = 16  # [bytes] per factor entry: value, index and SuperLU's own (peak RSS 174 MB at 128 x 128)
+_SPARSE_FIXED = 8 * 2**20  # [bytes] the sparse solver's fixed workspace (measured peaks 16-40 MB at 40-64 cells square)
 
 
 def _gib(n_bytes: float) -> str:
@@ -85,8 +86,9 @@ def encoding_bytes(config: IPPConfig) -> int:
 
     Up to :data:`~ipp_bench.roadmap.DENSE_ENCODING_MAX_NODES` nodes, the dense N x N Laplacian's arrays; above
     it the sparse solver: its LU (an empirical fill, see ``_LU_FILL``), ARPACK's 2 pe_dim + 1 Lanczos
-    vectors and the k-NN arrays. The estimate is 5-40 % above the process's measured peak on grid
-    roadmaps of 128 x 128 (2 and 3 levels, k = 20 and 40, grid and uniform) and 181 x 181 cells.
+    vectors, the k-NN arrays and a fixed workspace. The estimate is 5-50 % above the measured peak
+    (``benchmarks/bench_roadmap_scale.py``) on roadmaps of 40 x 40 to 256 x 256 cells, 2 and 3
+    levels, k = 20 and 40, grid and uniform sampling.
     """
     return _encoding_bytes(roadmap_nodes(config), config.graph.k, config.graph.pe_dim)
 
@@ -95,7 +97,7 @@ def _encoding_bytes(nodes: int, k: int, dim: int) -> int:
     if nodes <= DENSE_ENCODING_MAX_NODES:
         return _DENSE_LAPLACIAN_ARRAYS * nodes**2 * _FLOAT
     per_node = _LU_ENTRY * _LU_FILL * k * nodes**0.25 + _FLOAT * (2 * dim + 1 + 8) + _FLOAT * 3 * k
-    return int(nodes * per_node)
+    return int(nodes * per_node) + _SPARSE_FIXED
 
 
 def dense_belief_bytes(config: IPPConfig) -> int:

@@ -152,12 +152,15 @@ def laplacian_encoding(neighbours: np.ndarray, dim: int, method: str = "auto") -
             ``"auto"``: dense for at most :data:`DENSE_ENCODING_MAX_NODES` nodes, else sparse.
 
     Raises:
-        ValueError: an unknown ``method``.
+        ValueError: an unknown ``method``, or ``"sparse"`` on a graph of at most dim + 1 nodes.
     """
     if method not in ENCODING_METHODS:
         raise ValueError(f"method = {method!r} is invalid: expected one of {ENCODING_METHODS}")
     N = neighbours.shape[0]
     top = min(dim, N - 1)
+    if method == "sparse" and N <= dim + 1:
+        raise ValueError(f"method = 'sparse' needs more than dim + 1 = {dim + 1} nodes, the graph has {N}: "
+                         "use 'dense' (or 'auto')")
     if method == "dense" or (method == "auto" and N <= DENSE_ENCODING_MAX_NODES):
         vecs = _dense_eigenvectors(neighbours, top)
     else:

@@ -462,7 +462,7 @@ def test_an_encoding_too_large_is_one_line_naming_its_memory_and_limit():
         check_sizes(config.replace(rows=1000, cols=1000))
     assert str(err.value) == (
         "grid.rows x grid.cols x len(graph.altitudes) = 1000 x 1000 x 2 = 2000000 roadmap nodes is too large: the "
-        "positional encoding's sparse eigensolver (k = 20) needs about 26.6 GiB (limit 2 GiB, at most 242059 nodes)")
+        "positional encoding's sparse eigensolver (k = 20) needs about 26.6 GiB (limit 2 GiB, at most 241284 nodes)")
     with pytest.raises(ValueError, match=r"graph.n_samples = 400000 = 400000 roadmap nodes is too large: .* GiB \(limit"):
         check_sizes(config.replace(sampling="uniform", n_samples=400_000))
 

@@ -12,7 +12,8 @@ it counts SuperLU's and LAPACK's own allocations, which ``tracemalloc`` does not
 roadmap itself uses at that size. The dense solver runs up to ``--dense-max-nodes`` nodes; where
 both run, the dense child also reports how far the sparse encoding is from the dense one (largest
 principal angle between the two 32-dimensional subspaces, largest eigenvalue difference, largest
-entry difference) and ``limits.encoding_bytes``, the estimate ``check_sizes`` refuses maps by.
+entry difference). The solver ``auto`` picks also shows ``limits.encoding_bytes``, the estimate
+``check_sizes`` refuses maps by.
 """
 
 from __future__ import annotations
@@ -103,8 +104,9 @@ def main() -> None:
             agree = (f"{r['angle']:.1e} / {r['eig_diff']:.1e} / {r['entry_diff']:.1e} (least gap {r['min_gap']:.1e})"
                      if "angle" in r else "")
             mark = " (auto)" if r["auto"] else ""
+            estimate = f"{r['estimate_mb']:.0f}" if r["auto"] else ""  # the estimate is of the solver auto picks
             print(f"| {size} x {size} | {r['nodes']} | {method}{mark} | {r['knn_s']:.3f} | {r['encoding_s']:.3f} | "
-                  f"{r['knn_s'] + r['encoding_s']:.2f} | {r['peak_mb']:.0f} | {r['process_mb']:.0f} | {r['estimate_mb']:.0f} | {agree} |", flush=True)
+                  f"{r['knn_s'] + r['encoding_s']:.2f} | {r['peak_mb']:.0f} | {r['process_mb']:.0f} | {estimate} | {agree} |", flush=True)
         if nodes > args.dense_max_nodes:
             print(f"| {size} x {size} | {nodes} | dense | skipped: a {nodes**2 * 8 / 2**30:.2g} GiB Laplacian | | | | | | |")
     print(f"load at the end {os.getloadavg()[0]:.2f}")

@@ -23,7 +23,7 @@ from .config import IPPConfig
 from .roadmap import DENSE_ENCODING_MAX_NODES
 from .sensor import Sensor
 
-#: [bytes] the largest single array an estimate may reach (dense Laplacian, covariance, leg update)
+#: [bytes] the most memory an estimate may reach (the encoding's solver, the dense belief's prior, a leg update)
 ARRAY_LIMIT_BYTES = 2 * 2**30
 #: decisions after which an episode that has not ended is a planner bug (the episode loop's limit)
 MAX_DECISIONS = 100_000
@@ -38,7 +38,7 @@ _FLOAT = 8  # bytes of a float64
 DENSE_BELIEF_ARRAYS = 5
 #: the sparse encoding's LU: ~``_LU_FILL`` k N^0.25 factor entries per node (SuperLU, minimum degree
 #: on A + A^T, symmetric mode), fitted on grid roadmaps of 48 x 48 to 181 x 181 cells x 2 levels
-#: (180 to 337 per node at k = 20) and checked on 3 levels, k = 40 and uniform sampling (all below)
+#: (180 to 337 per node at k = 20); on 3 levels, k = 40 and uniform sampling the fill is below the fit
 _LU_FILL = 1.1
 #: [-] float64 arrays of N x N the dense encoding holds at its peak (adjacency, its transpose's maximum,
 #: the scaled products, the identity, L): 4.1 N^2 floats measured at 1 800 nodes (102 MB)

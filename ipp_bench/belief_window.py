@@ -35,7 +35,7 @@ import numpy as np
 from numpy.lib.stride_tricks import as_strided
 from scipy.linalg import cho_solve, solve_triangular
 
-from .belief import LegBatch, _as_cov, matern32
+from .belief import GPBelief, LegBatch, _as_cov, matern32
 
 WINDOW_LENGTH_SCALES = 4.0  # [-] the window covers this many length scales (prior correlation 0.8 % there)
 DEFAULT_GROUP_SPAN = 8  # [cells] largest bounding box side of the rows fused in one update
@@ -45,6 +45,20 @@ MASK_CACHE = 32  # window masks kept (one per rectangle shape; 0.6 MB each at w 
 def window_for(length_scale: float, resolution: float) -> int:
     """The default window [cells]: ceil(4 length scales / cell side); 12 for the v2 prior at 2.5 m, 14 for v1."""
     return max(1, math.ceil(WINDOW_LENGTH_SCALES * length_scale / resolution - 1e-9))
+
+
+def task_window(grid, gp) -> int:
+    """The window [cells] of a task's window belief: ``gp.belief_window``, or when 0 :func:`window_for`
+    its length scale and cell side."""
+    return int(gp.belief_window) if gp.belief_window else window_for(gp.length_scale, grid.resolution)
+
+
+def prior_belief(grid, gp) -> "GPBelief | WindowBelief":
+    """The prior a task's belief starts from, by ``gp.belief``: the dense :class:`~ipp_bench.belief.GPBelief`
+    (``"dense"``) or the :class:`WindowBelief` (``"window"``). The one place the choice is made."""
+    if gp.belief == "window":
+        return WindowBelief.prior(grid, gp)
+    return GPBelief.prior(grid, gp)
 
 
 class WindowBelief:
@@ -98,9 +112,11 @@ class WindowBelief:
 
     @classmethod
     def prior(cls, grid, gp, window: int | None = None) -> WindowBelief:
-        """The prior of a :class:`~ipp_bench.config.GridConfig` and :class:`~ipp_bench.config.GPConfig`."""
+        """The prior of a :class:`~ipp_bench.config.GridConfig` and :class:`~ipp_bench.config.GPConfig`,
+        within ``window`` [cells] (default: :func:`task_window`, the config's)."""
         return cls.from_grid((grid.rows, grid.cols), grid.resolution, gp.length_scale,
-                             gp.signal_variance, gp.prior_mean, gp.nugget, window)
+                             gp.signal_variance, gp.prior_mean, gp.nugget,
+                             task_window(grid, gp) if window is None else window)
 
     @property
     def n(self) -> int:
@@ -341,4 +357,4 @@ def _is_diagonal(R: np.ndarray) -> bool:
     return not np.any(R - np.diag(np.diag(R)))
 
 
-__all__ = ["DEFAULT_GROUP_SPAN", "WINDOW_LENGTH_SCALES", "WindowBelief", "window_for"]
+__all__ = ["DEFAULT_GROUP_SPAN", "WINDOW_LENGTH_SCALES", "WindowBelief", "prior_belief", "task_window", "window_for"]

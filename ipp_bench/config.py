@@ -20,6 +20,10 @@ FIELD_FAMILIES = ("bernoulli", "regions", "weed_patches")
 #: less than this still fits, a record at most this after a report time counts "at or before" it
 TIME_TOL_S = 1e-9
 SAMPLING_MODES = ("grid", "uniform")
+#: the field beliefs a task can hold: "dense", :class:`~ipp_bench.belief.GPBelief` (the n x n
+#: covariance; every task up to 30 x 30), "window", :class:`~ipp_bench.belief_window.WindowBelief`
+#: (the covariance within a window of cells; large maps)
+BELIEF_KINDS = ("dense", "window")
 #: every field family has at least one cell at or above this value (``ipp_bench.fields``), so an
 #: evaluation ROI ``truth >= mu_th`` with ``mu_th`` up to it is never empty
 FIELD_GUARANTEED_MAX = 0.5
@@ -126,6 +130,8 @@ class GPConfig:
     signal_variance: float = 1.82  # [field units^2]
     prior_mean: float = 0.5  # [field units]
     nugget: float = 0.0  # [field units^2] independent per-cell variance added to the prior diagonal
+    belief: str = "dense"  # one of BELIEF_KINDS: "dense" (GPBelief) or "window" (WindowBelief, large maps)
+    belief_window: int = 0  # [cells] the window belief's window w; 0: ceil(4 length scales / cell side)
 
     def __post_init__(self) -> None:
         _positive("gp", "length_scale", self.length_scale)
@@ -133,7 +139,10 @@ class GPConfig:
         _finite("gp", "prior_mean", self.prior_mean)
         if _finite("gp", "nugget", self.nugget) < 0:
             _fail("gp", "nugget", self.nugget, "a finite number >= 0")
-        _plain(self, "length_scale", "signal_variance", "prior_mean", "nugget")
+        if self.belief not in BELIEF_KINDS:
+            _fail("gp", "belief", self.belief, f"one of {BELIEF_KINDS}")
+        _integer("gp", "belief_window", self.belief_window, 0)
+        _plain(self, "length_scale", "signal_variance", "prior_mean", "nugget", "belief_window")
 
 
 @dataclass(frozen=True)
@@ -311,6 +320,10 @@ class IPPConfig:
                 object.__setattr__(self, name, _build(cls, name, value))
             elif not isinstance(value, cls):
                 _fail("config", name, value, f"a {cls.__name__} or a dict of its fields")
+        if self.gp.belief == "window" and self.sensor.camera_error_states:
+            _fail("gp", "belief", self.gp.belief,
+                  "'dense' with the camera's error states (sensor.persistent_var, persistent_var_binned, "
+                  "noise_floor): the window belief has white read-out noise only")
         start = self.mission.start
         if start is not None:
             c, r, _ = start

@@ -12,13 +12,15 @@ The limits are far above every task of the suite (the largest, 30 x 30 cells, ne
 its Laplacian and at most a few MiB per leg update) and well below what a workstation has. A
 128 x 128 map (issue 20) passes the roadmap and encoding check (the sparse eigensolver, ~0.2 GB)
 and is refused by the dense belief's, which names the scalable belief,
-:class:`ipp_bench.belief_window.WindowBelief`.
+:class:`ipp_bench.belief_window.WindowBelief`; a task that holds the window belief
+(``gp.belief = "window"``) is checked against the window belief's memory instead.
 """
 
 from __future__ import annotations
 
 import math
 
+from .belief_window import DEFAULT_GROUP_SPAN, MASK_CACHE, task_window
 from .config import IPPConfig
 from .roadmap import DENSE_ENCODING_MAX_NODES
 from .sensor import Sensor
@@ -105,6 +107,17 @@ def dense_belief_bytes(config: IPPConfig) -> int:
     return DENSE_BELIEF_ARRAYS * belief_states(config) ** 2 * _FLOAT
 
 
+def window_belief_bytes(config: IPPConfig) -> int:
+    """[bytes] the window belief (:class:`~ipp_bench.belief_window.WindowBelief`) at its largest: the
+    band of n (2w + 1)^2 floats and the mean, the downdate's scratch for the largest fused group
+    (``group_span`` + 2w cells square, its Gram matrix) and the cache of window masks at that size.
+    95 MB measured at 128 x 128, w = 12 (``benchmarks/bench_belief_scale.py``); this gives 110 MB."""
+    n, w = config.grid.n_cells, task_window(config.grid, config.gp)
+    side = 2 * w + 1
+    rect = min(config.grid.rows, DEFAULT_GROUP_SPAN + 2 * w) * min(config.grid.cols, DEFAULT_GROUP_SPAN + 2 * w)
+    return n * side**2 * _FLOAT + n * _FLOAT + rect**2 * _FLOAT + MASK_CACHE * rect * side**2
+
+
 def _most(fn, limit: float) -> int:
     """The largest n with fn(n) <= limit, fn increasing (bisection)."""
     lo, hi = 1, 1
@@ -133,14 +146,20 @@ def check_sizes(config: IPPConfig) -> None:
                          f"eigensolver (k = {graph.k}) needs about {_gib(need)} (limit {_gib(ARRAY_LIMIT_BYTES)}, "
                          f"at most {most} nodes)")
     states = belief_states(config)
-    need = dense_belief_bytes(config)
-    if need > ARRAY_LIMIT_BYTES:
+    if config.gp.belief == "window":
+        need = window_belief_bytes(config)
+        if need > ARRAY_LIMIT_BYTES:
+            raise ValueError(
+                f"grid.rows x grid.cols = {grid.rows} x {grid.cols} cells is too large for the window belief: its "
+                f"band of {states} x {(2 * task_window(config.grid, config.gp) + 1) ** 2} covariances needs {_gib(need)} "
+                f"(limit {_gib(ARRAY_LIMIT_BYTES)}); lower gp.belief_window or the map's size")
+    elif (need := dense_belief_bytes(config)) > ARRAY_LIMIT_BYTES:
         most = _most(lambda n: DENSE_BELIEF_ARRAYS * n**2 * _FLOAT, ARRAY_LIMIT_BYTES)
         raise ValueError(
             f"grid.rows x grid.cols = {grid.rows} x {grid.cols} cells is too large for the dense belief: its "
             f"covariance of {states} states needs {_gib(states**2 * _FLOAT)}, {_gib(need)} while its prior is built "
             f"(limit {_gib(ARRAY_LIMIT_BYTES)}, at most {most} states); a map this large needs the scalable belief "
-            "ipp_bench.belief_window.WindowBelief")
+            "ipp_bench.belief_window.WindowBelief: set gp.belief = 'window' (--env belief=window)")
     rows, longest, cells = leg_update_rows(config)
     need = rows**2 * _FLOAT
     if need > ARRAY_LIMIT_BYTES:
@@ -163,4 +182,4 @@ def check_sizes(config: IPPConfig) -> None:
 
 
 __all__ = ["ARRAY_LIMIT_BYTES", "DENSE_BELIEF_ARRAYS", "MAX_DECISIONS", "MAX_FLIGHT_CELLS", "belief_states", "check_sizes",
-           "dense_belief_bytes", "encoding_bytes", "leg_update_rows", "roadmap_nodes"]
+           "dense_belief_bytes", "encoding_bytes", "window_belief_bytes", "leg_update_rows", "roadmap_nodes"]

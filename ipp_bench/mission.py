@@ -31,6 +31,7 @@ import numpy as np
 
 from . import metrics as M
 from .belief import GPBelief, belief_model
+from .belief_window import WindowBelief, prior_belief
 from .config import TIME_TOL_S, IPPConfig, cell_centre
 from .sensor import Observation, Sensor
 
@@ -177,14 +178,14 @@ class Mission:
         truth: (rows, cols) ground truth in [0, 1]; never shown to planners.
         rng: generator of the sensor noise.
         start_xyz: start position [m].
-        belief: initial belief (default: the GP prior of ``config.gp``).
+        belief: initial belief (default: the prior of ``config.gp``, dense or window by ``gp.belief``).
         sensor: the camera model (default: built from ``config``; an env passes its own, so that
             it builds one).
         platform: what flies the legs and reads the camera (default: :class:`StraightLegs`).
     """
 
     def __init__(self, config: IPPConfig, truth: np.ndarray, rng: np.random.Generator,
-                 start_xyz, belief: GPBelief | None = None, sensor: Sensor | None = None,
+                 start_xyz, belief: GPBelief | WindowBelief | None = None, sensor: Sensor | None = None,
                  platform: "Platform | None" = None):
         g = config.grid
         truth = np.array(truth, dtype=np.float64)
@@ -196,7 +197,7 @@ class Mission:
         self._truth_flat = truth.reshape(-1)
         self.rng = rng
         self.sensor = sensor if sensor is not None else Sensor(g, config.sensor)
-        self.belief = belief if belief is not None else GPBelief.prior(g, config.gp)
+        self.belief = belief if belief is not None else prior_belief(g, config.gp)
         #: what every update goes through (white noise, or the camera's error states): it keeps
         #: ``belief`` (the field's marginal) current
         self.belief_model = belief_model(self.belief, self.sensor.cfg)

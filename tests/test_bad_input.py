@@ -450,8 +450,9 @@ def test_a_dense_belief_too_large_is_one_line_before_any_allocation():
     assert str(err.value) == (
         "grid.rows x grid.cols = 128 x 128 cells is too large for the dense belief: its covariance of 16384 states "
         "needs 2 GiB, 10 GiB while its prior is built (limit 2 GiB, at most 7327 states); a map this large needs "
-        "the scalable belief ipp_bench.belief_window.WindowBelief")
-    check_sizes(config.replace(rows=85, cols=85))  # 7 225 states: the largest square map the dense belief takes
+        "the scalable belief ipp_bench.belief_window.WindowBelief: set gp.belief = 'window' (--env belief=window)")
+    check_sizes(config.replace(rows=85, cols=85))
+    check_sizes(big.replace(belief="window"))  # the window belief's estimate instead: ~0.1 GiB  # 7 225 states: the largest square map the dense belief takes
 
 
 def test_an_encoding_too_large_is_one_line_naming_its_memory_and_limit():

@@ -222,6 +222,19 @@ class GPBelief:
         A, _, _ = gain_factor(self.cov, cells, W, R)
         return np.maximum(np.diag(self.cov) - np.einsum("ij,ij->i", A, A), 0.0)
 
+    def trace_reductions(self, legs, roi: np.ndarray) -> np.ndarray:
+        """For every leg: Tr(P - P+) over the cells ``roi`` (bool mask (n,)), each leg's rows fused as
+        one batch; 0 for legs that see nothing: :func:`trace_reductions` on the covariance. The
+        look-gain method both beliefs have (:meth:`WindowBelief.trace_reductions
+        <ipp_bench.belief_window.WindowBelief.trace_reductions>`), so planners need not ask which.
+
+        Args:
+            legs: a :class:`LegBatch`, or a sequence of ``(cells, W, var)`` or None per leg (batched here).
+            roi: (n,) bool.
+        """
+        batch = legs if isinstance(legs, LegBatch) else LegBatch(list(legs))
+        return trace_reductions(self.cov, batch, roi)
+
 
 def value_scale(t, floor: float) -> np.ndarray:
     """Variance factor k + (1 - k) 4 t (1 - t) of a camera error at field value ``t`` (clipped to [0, 1])."""

@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import metrics as M
 from ..belief import GPBelief
+from ..belief_window import WindowBelief
 from ..config import IPPConfig
 from ..mission import fits_budget, leg_length, leg_samples
 from ..roadmap import Roadmap
@@ -60,7 +61,7 @@ class RobotView:
 
     # -- state -------------------------------------------------------------------------------------
     @property
-    def belief(self) -> GPBelief:
+    def belief(self) -> GPBelief | WindowBelief:
         """The live belief (read it; never update it: that is the mission's job)."""
         return self._env.mission.belief
 
@@ -105,6 +106,15 @@ class RobotView:
     def belief_roi(self) -> np.ndarray:
         return self._env.mission.belief_roi()
 
+    def require_dense_belief(self, planner: str, reason: str) -> None:
+        """Refuse, in one line naming the task, the planner and ``reason``, a task whose belief is not the
+        dense :class:`~ipp_bench.belief.GPBelief` (``gp.belief = "window"``): for planners that need
+        its full covariance. Called in ``reset``, so a leaderboard refuses before the first episode."""
+        gp, grid = self.config.gp, self.config.grid
+        if gp.belief != "dense":
+            task = getattr(self._env, "task_id", None) or f"a {grid.rows} x {grid.cols} map"
+            raise ValueError(f"planner {planner!r} cannot run on {task} (gp.belief = {gp.belief!r}): {reason}")
+
     # -- prediction --------------------------------------------------------------------------------
     def leg_observations(self, start, end) -> list[Observation]:
         """The read-outs the mission would take flying ``start -> end`` (same spacing rule)."""
@@ -122,7 +132,7 @@ class RobotView:
         return out
 
     @staticmethod
-    def predict_variance(belief: GPBelief, observations: list[Observation]) -> np.ndarray:
+    def predict_variance(belief: GPBelief | WindowBelief, observations: list[Observation]) -> np.ndarray:
         """Posterior marginal variances after the read-outs (values do not matter)."""
         if not observations:
             return belief.variance

@@ -127,6 +127,7 @@ def far_scores(view: Any, obs: dict[str, np.ndarray], top: int = FAR_TOP) -> np.
     from ..policies.features import LookGain  # the cheap ranking (policies: the network's feature)
     from .greedy import greedy_scores
 
+    view.require_dense_belief("far", "its far targets' look gains read the full covariance (FarTargets.gains)")
     mask = np.asarray(obs["action_mask"]).astype(bool).reshape(-1)
     scores = np.where(mask, greedy_scores(view, int(obs["current_node"][0])), -np.inf)
     ft = FarTargets.of(view)

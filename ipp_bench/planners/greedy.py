@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import weakref
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..belief import LegBatch, trace_reductions
+from ..belief import LegBatch
 from ..sensor import stack
 from .base import GraphPlanner
 
@@ -18,26 +19,38 @@ class GreedyConfig:
 
 
 _LEGS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: roadmap nodes whose legs are cached for the window belief, most recently used kept: about 0.3 MB a
+#: node (20 legs of up to 3 looks), so a 128 x 128 roadmap of 32 768 nodes cached in full would be 10 GB
+WINDOW_LEG_CACHE_NODES = 512
 
 
-def leg_batch(view, node: int) -> LegBatch:
-    """The read-outs of the legs from ``node`` to each of its neighbours, as one batch.
+def leg_batch(view, node: int) -> LegBatch | list:
+    """The read-outs of the legs from ``node`` to each of its neighbours, as the view's belief takes them.
 
     They depend only on the roadmap, the camera and the measurement spacing, so they are built once
-    per roadmap (the planner's episodes and the attention policy's feature share them).
+    per roadmap (the planner's episodes and the attention policy's feature share them). The dense
+    belief gets one :class:`~ipp_bench.belief.LegBatch` (weights padded to the union of the legs'
+    cells) per node, every node kept; the window belief the per-leg list ``(cells, W, var)`` or None
+    it is built from, the last :data:`WINDOW_LEG_CACHE_NODES` nodes kept.
     """
     rm = view.roadmap
-    key = (id(view.sensor), view.config.mission.measurement_spacing)
+    window = view.config.gp.belief == "window"
+    key = (id(view.sensor), view.config.mission.measurement_spacing, window)
     per_map = _LEGS.get(rm)
     if per_map is None or per_map[0] != key:
-        per_map = _LEGS[rm] = (key, {})
-    batch = per_map[1].get(node)
+        per_map = _LEGS[rm] = (key, OrderedDict() if window else {})
+    cache = per_map[1]
+    batch = cache.get(node)
     if batch is None:
         legs = []
         for target in rm.neighbours[node]:
             obs = view.leg_observations(rm.positions[node], rm.positions[target])
             legs.append(stack(obs) if obs else None)
-        batch = per_map[1][node] = LegBatch(legs)
+        batch = cache[node] = legs if window else LegBatch(legs)
+        if window and len(cache) > WINDOW_LEG_CACHE_NODES:
+            cache.popitem(last=False)
+    elif window:
+        cache.move_to_end(node)
     return batch
 
 
@@ -46,7 +59,7 @@ def greedy_scores(view, node: int, roi: np.ndarray | None = None) -> np.ndarray:
     (from the view's position), unmasked: greedy's score. The ROI is the belief's (``roi=None``) or
     the mask given (the ``oracle`` reference passes the true one)."""
     roi = view.belief_roi() if roi is None else roi
-    gains = trace_reductions(view.belief.cov, leg_batch(view, node), roi)
+    gains = view.belief.trace_reductions(leg_batch(view, node), roi)
     return gains / view.neighbour_durations(node, view.position)
 
 

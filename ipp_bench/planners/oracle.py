@@ -81,6 +81,8 @@ class OraclePlanner(GreedyPlanner):
     reads_truth = True
 
     def reset(self, view, seed: int) -> None:
+        view.require_dense_belief(self.name, "its far targets' look gains need the full covariance with the "
+                                  "ROI (LookBatch, n x n)")
         super().reset(view, seed)
         self._set_targets(view.true_roi())
 

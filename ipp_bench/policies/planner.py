@@ -124,6 +124,9 @@ class AttentionPlanner(GraphPlanner):
         # pe_dim is the task's; the node features are checked on the first observation (_check).
         check_feature_dims(self.net.cfg, self.net.cfg.node_dim, view.config.graph.pe_dim,
                            f"attention checkpoint {self._source}")
+        if self.net.cfg.rate_skip and self.net.cfg.skip_teacher == "far":
+            view.require_dense_belief(f"attention ({self._source})", "its rate feature is the far teacher's "
+                                      "score, whose far targets' look gains read the full covariance")
         super().reset(view, seed)
 
     def _check(self, obs: dict[str, np.ndarray]) -> None:

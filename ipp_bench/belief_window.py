@@ -53,7 +53,7 @@ def task_window(grid, gp) -> int:
     return int(gp.belief_window) if gp.belief_window else window_for(gp.length_scale, grid.resolution)
 
 
-def prior_belief(grid, gp) -> "GPBelief | WindowBelief":
+def prior_belief(grid, gp) -> GPBelief | WindowBelief:
     """The prior a task's belief starts from, by ``gp.belief``: the dense :class:`~ipp_bench.belief.GPBelief`
     (``"dense"``) or the :class:`WindowBelief` (``"window"``). The one place the choice is made."""
     if gp.belief == "window":

@@ -182,4 +182,4 @@ def check_sizes(config: IPPConfig) -> None:
 
 
 __all__ = ["ARRAY_LIMIT_BYTES", "DENSE_BELIEF_ARRAYS", "MAX_DECISIONS", "MAX_FLIGHT_CELLS", "belief_states", "check_sizes",
-           "dense_belief_bytes", "encoding_bytes", "window_belief_bytes", "leg_update_rows", "roadmap_nodes"]
+           "dense_belief_bytes", "encoding_bytes", "leg_update_rows", "roadmap_nodes", "window_belief_bytes"]

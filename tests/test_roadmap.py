@@ -150,6 +150,7 @@ def test_every_task_keeps_its_dense_encoding_bit_for_bit():
     assert {g.rows for g, _ in sizes} >= {15, 20, 30}
 
 
+@pytest.mark.slow  # a dense eigh of 2 880 nodes (3.4 s); the suite sizes and the degenerate case run by default
 def test_sparse_encoding_spans_the_dense_eigenspace_on_a_mid_size_map():
     rm = Roadmap.build(GridConfig(36, 40, 2.5), GraphConfig(), 2.0)  # 2 880 nodes: above the dense limit
     assert rm.n_nodes > 2048

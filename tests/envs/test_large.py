@@ -53,6 +53,7 @@ def test_the_budget_keeps_hotspots30s_share_of_the_map():
     assert share(EVAL) < 1.0
 
 
+@pytest.mark.slow  # builds the 128 x 128 env (roadmap and encoding about 2.5 s, the env check 3 s)
 def test_an_env_step_on_the_window_belief(env):
     check_env(env, skip_render_check=True)
     obs, _ = env.reset(seed=0)
@@ -66,6 +67,7 @@ def test_an_env_step_on_the_window_belief(env):
     assert env.observation_space.contains(obs)
 
 
+@pytest.mark.slow  # the 128 x 128 env
 def test_a_greedy_episode_runs_and_the_dense_only_planners_refuse(env):
     from ipp_bench.planners.episode import fly_episode
 

@@ -11,7 +11,9 @@ again before the next frame.
 
 from __future__ import annotations
 
+import atexit
 import math
+import weakref
 
 import numpy as np
 
@@ -44,6 +46,26 @@ def follow_azimuth(current: float, target: float, rate: float) -> float:
     """Turns ``current`` towards ``target`` [deg] by the fraction ``rate`` of the shortest way."""
     delta = (target - current + 180.0) % 360.0 - 180.0
     return current + rate * delta
+
+
+#: renderers with a GL context: closed at interpreter exit by :func:`_close_open_renderers`
+_OPEN: weakref.WeakSet = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_renderers() -> None:
+    """Free the GL contexts of renderers nobody closed (an env dropped without ``close()``).
+
+    MuJoCo's EGL backend terminates its display in an ``atexit`` handler registered when the first
+    context is made; a context freed after that (by the garbage collector at shutdown) prints an
+    ``EGLError`` traceback. ``atexit`` runs the last registered first, so
+    :meth:`SceneRenderer._open` registers this handler again after every context it makes.
+    """
+    for renderer in list(_OPEN):
+        try:
+            renderer.close()
+        except Exception:  # noqa: BLE001 - at exit: nothing to report to
+            pass
 
 
 class SceneRenderer:
@@ -80,6 +102,9 @@ class SceneRenderer:
         except Exception as err:  # any backend failure: explain which library / apt package
             raise _gl.require_gl(err) from err
         self._gl = gl_context
+        _OPEN.add(self)  # closed before EGL's own atexit terminates the display (see _close_open_renderers)
+        atexit.unregister(_close_open_renderers)
+        atexit.register(_close_open_renderers)  # after EGL's (made with the first context): runs before it
         self._con = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100.value)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, self._con)
         self._scn = mujoco.MjvScene(model, maxgeom=self._max_geom)

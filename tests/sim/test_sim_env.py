@@ -140,3 +140,21 @@ def test_full_200s_mission():
     assert log.final["uncertainty_reduction_pct"] > 0
     assert m.n_measurements > 100
     e.close()
+
+
+def test_an_env_dropped_without_close_exits_without_an_egl_traceback():
+    """A MuJoCo env a script forgets to close is freed before EGL's display is terminated at exit."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("from ipp_bench.envs import make_env\n"
+            "from ipp_bench.planners.episode import fly_episode\n"
+            "e = make_env('MuJoCoWeed15-v1', budget_s=10.0); fly_episode(e, 'random', 0)\n"
+            "e = make_env('Weed15Twin-v1', budget_s=10.0); fly_episode(e, 'random', 0)\n"
+            "print('done')\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
+    assert proc.returncode == 0 and proc.stdout.strip() == "done", proc.stderr
+    assert "Traceback" not in proc.stderr and "EGLError" not in proc.stderr, proc.stderr
+

@@ -21,8 +21,8 @@ def test_episode_seeds_are_deterministic_distinct_and_prefix_stable():
 
 
 def test_plan_canonicalises_specs_and_resolves_short_task_names():
-    plan = make_plan(tasks=["Grid15Eval-v0"], planners=["random", "mcts:simulations=007"], episodes=2)
-    assert plan.tasks == ("ipp_bench/Grid15Eval-v0",)
+    plan = make_plan(tasks=["Grid15Eval-v1"], planners=["random", "mcts:simulations=007"], episodes=2)
+    assert plan.tasks == ("ipp_bench/Grid15Eval-v1",)
     assert plan.planners == ("random", "mcts:simulations=7")
     assert len(plan.jobs()) == 4
 
@@ -37,7 +37,7 @@ def test_plan_canonicalises_specs_and_resolves_short_task_names():
     (dict(env_overrides={"no_such_field": 1}), "unknown config field"),
 ], ids=["planner", "setting", "value", "task", "duplicate", "budget", "override"])
 def test_bad_arguments_fail_with_the_library_message(kwargs, match):
-    args = dict(tasks=["Grid15Eval-v0"], planners=["random"], episodes=1, log=lambda m: None)
+    args = dict(tasks=["Grid15Eval-v1"], planners=["random"], episodes=1, log=lambda m: None)
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         make_plan(**args)
@@ -46,12 +46,12 @@ def test_bad_arguments_fail_with_the_library_message(kwargs, match):
 def test_quick_overrides_fit_every_planner_and_the_spec_wins():
     names = [n for n in QUICK_OVERRIDES if n in REGISTRY]
     assert names, "quick mode overrides no registered planner"
-    plan = make_plan(tasks=["Grid15Eval-v0"], planners=names, quick=True, log=lambda m: None)
+    plan = make_plan(tasks=["Grid15Eval-v1"], planners=names, quick=True, log=lambda m: None)
     assert plan.episodes == QUICK_EPISODES
     for spec in plan.planners:
         name, overrides = parse_spec(spec)
         assert {k: str(v) for k, v in QUICK_OVERRIDES[name].items()}.items() <= overrides.items()
-    own = make_plan(tasks=["Grid15Eval-v0"], planners=["mcts:simulations=2"], quick=True)
+    own = make_plan(tasks=["Grid15Eval-v1"], planners=["mcts:simulations=2"], quick=True)
     assert own.planners == ("mcts:simulations=2",)
 
 
@@ -59,11 +59,11 @@ def test_default_planners_leave_out_what_cannot_load_but_explicit_fails_loudly(m
     monkeypatch.setitem(REGISTRY, "ghost", "ipp_bench.planners.no_such_module:Ghost")
     monkeypatch.setattr(plan_module, "planner_names", lambda: ["random", "ghost"])
     notes = []
-    plan = make_plan(tasks=["Grid15Eval-v0"], episodes=1, log=notes.append)
+    plan = make_plan(tasks=["Grid15Eval-v1"], episodes=1, log=notes.append)
     assert plan.planners == ("random",)
     assert any("ghost" in n and "no_such_module" in n for n in notes)
     with pytest.raises(ImportError, match="no_such_module"):
-        make_plan(tasks=["Grid15Eval-v0"], planners=["ghost"], episodes=1)
+        make_plan(tasks=["Grid15Eval-v1"], planners=["ghost"], episodes=1)
 
 
 def test_comma_separated_specs_split_where_a_new_planner_starts():
@@ -73,9 +73,9 @@ def test_comma_separated_specs_split_where_a_new_planner_starts():
 
 
 def test_a_quick_that_changes_nothing_is_no_quick_run():
-    assert not make_plan(tasks=["Grid15Eval-v0"], planners=["random"], episodes=2, quick=True).quick
-    assert make_plan(tasks=["Grid15Eval-v0"], planners=["random"], quick=True).quick  # fewer episodes
-    assert make_plan(tasks=["Grid15Eval-v0"], planners=["mcts"], episodes=2, quick=True).quick  # cheaper MCTS
+    assert not make_plan(tasks=["Grid15Eval-v1"], planners=["random"], episodes=2, quick=True).quick
+    assert make_plan(tasks=["Grid15Eval-v1"], planners=["random"], quick=True).quick  # fewer episodes
+    assert make_plan(tasks=["Grid15Eval-v1"], planners=["mcts"], episodes=2, quick=True).quick  # cheaper MCTS
 
 
 class _NoConfigPlanner:

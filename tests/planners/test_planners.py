@@ -10,7 +10,7 @@ from ipp_bench.eval.runner import run_episode
 from ipp_bench.planners import RobotView, make_config, make_planner, parse_spec, planner_names
 from ipp_bench.planners.episode import fly_episode
 
-TASK = "ipp_bench/Grid15Eval-v0"
+TASK = "ipp_bench/Grid15Eval-v1"
 CHEAP = {"random": "random", "coverage": "coverage", "greedy": "greedy",
          "mcts": "mcts:simulations=8,horizon_s=4", "cmaes": "cmaes:max_evals=24"}
 

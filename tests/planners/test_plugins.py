@@ -55,7 +55,7 @@ def test_an_installed_plugin_is_found_by_name_and_runs(installed_plugin, tmp_pat
     assert "theirs" in planners.planner_names()
     assert planners.make_planner("theirs").name == "first"
     out = tmp_path / "lb"
-    assert main(["leaderboard", "--tasks", "Grid15Eval-v0", "--planners", "theirs", "greedy", "--episodes", "1",
+    assert main(["leaderboard", "--tasks", "Grid15Eval-v1", "--planners", "theirs", "greedy", "--episodes", "1",
                  "--backend", "serial", "--no-progress", "--out", str(out), "--env", "budget_s=20",
                  "--env", "report_times=[20]"]) == 0
     assert "`theirs`" in (out / "leaderboard.md").read_text()

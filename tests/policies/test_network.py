@@ -92,7 +92,7 @@ def test_same_weights_on_grid15_and_grid20_envs():
     import ipp_bench.envs  # noqa: F401
 
     net = AttentionNet().eval()
-    for task, n in (("ipp_bench/Grid15Eval-v0", 450), ("ipp_bench/Grid20Eval-v0", 800)):
+    for task, n in (("ipp_bench/Grid15Eval-v1", 450), ("ipp_bench/Grid20Eval-v1", 800)):
         env = gym.make(task)
         obs, _ = env.reset(seed=3)
         assert obs["node_features"].shape[0] == n

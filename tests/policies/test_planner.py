@@ -26,7 +26,7 @@ def small_ckpt(tmp_path_factory):
     return path
 
 
-def _fly(planner, task="ipp_bench/Grid15Eval-v0", seed=0, steps=40):
+def _fly(planner, task="ipp_bench/Grid15Eval-v1", seed=0, steps=40):
     env = gym.make(task)
     obs, _ = env.reset(seed=seed)
     planner.reset(RobotView(env.unwrapped), seed)
@@ -70,7 +70,7 @@ def test_planner_single_valid_neighbour(small_ckpt):
 
 
 def test_planner_runs_on_the_larger_grid(small_ckpt):
-    _fly(make_planner(f"attention:checkpoint={small_ckpt}"), task="ipp_bench/Grid20Eval-v0", steps=10)
+    _fly(make_planner(f"attention:checkpoint={small_ckpt}"), task="ipp_bench/Grid20Eval-v1", steps=10)
 
 
 def test_missing_checkpoint_says_what_was_expected(tmp_path):

@@ -124,7 +124,8 @@ def _coerce(value: Any, kind: Any, where: str) -> Any:
         if kind in (int, float, str):
             return kind(value)
     except ValueError:
-        raise ValueError(f"{where} = {value!r} is invalid: expected a {getattr(kind, '__name__', kind)}") from None
+        name = {int: "an integer", float: "a number", str: "a string"}.get(kind, f"a {getattr(kind, '__name__', kind)}")
+        raise ValueError(f"{where} = {value!r} is invalid: expected {name}") from None
     return value
 
 

@@ -1,7 +1,8 @@
 """Receding-horizon CMA-ES over continuous 3D waypoints (Hitz et al. 2017; Popovic et al. 2020).
 
 At every decision CMA-ES (pycma, seeded, writing no files) optimises ``n_waypoints`` points in
-[0, width] x [0, height] x [lowest, highest altitude level]. The objective is the predicted
+[0, width] x [0, height] x [lowest, highest altitude level] (``reach_m``: within that half-width of the
+UAV in x and y, for maps much larger than the paper's). The objective is the predicted
 reduction of Tr(P) over the belief ROI from the measurements the mission would take along the
 path (same spacing rule, values not needed), divided by the path's flight time, the path cut at
 the remaining budget. The first waypoint is flown; the rest warm-starts the next optimisation.
@@ -27,6 +28,10 @@ class CMAESConfig:
         max_evals: objective evaluations per decision.
         sigma0: initial step size as a fraction of each axis' range.
         min_leg_m: shortest first leg [m] (shorter candidates are stretched to it).
+        reach_m: half-width [m] of the search box in x and y, centred on the UAV (cut at the map's
+            edges); 0: the whole map. On a map much larger than the paper's the whole map is a box in
+            which ``sigma0`` is tens of metres and every candidate path crosses it; ``reach_m`` keeps
+            the search (and an objective evaluation's cost) the size it is on a small map.
     """
 
     n_waypoints: int = 3
@@ -34,6 +39,7 @@ class CMAESConfig:
     max_evals: int = 72
     sigma0: float = 0.25
     min_leg_m: float = 2.5  # [m]
+    reach_m: float = 0.0  # [m] 0: the whole map
 
     def __post_init__(self):
         check_integer("cmaes.n_waypoints", self.n_waypoints, 1, 100)
@@ -41,6 +47,7 @@ class CMAESConfig:
         check_integer("cmaes.max_evals", self.max_evals, self.popsize, 10_000_000)
         check_number("cmaes.sigma0", self.sigma0, 0.0, 1.0, low_open=True)
         check_number("cmaes.min_leg_m", self.min_leg_m, 0.0, low_open=True, unit="m")
+        check_number("cmaes.reach_m", self.reach_m, 0.0, unit="m")
 
 
 class CMAESPlanner(ContinuousPlanner):
@@ -61,9 +68,21 @@ class CMAESPlanner(ContinuousPlanner):
         cfg = view.config
         width, height = cfg.grid.size_m
         alts = cfg.graph.altitudes
-        self._lo = np.array([0.0, 0.0, alts[0]])
-        self._hi = np.array([width, height, alts[-1] if alts[-1] > alts[0] else alts[0] + 1e-6])
-        self._plan: np.ndarray | None = None
+        self._map_lo = np.array([0.0, 0.0, alts[0]])
+        self._map_hi = np.array([width, height, alts[-1] if alts[-1] > alts[0] else alts[0] + 1e-6])
+        self._lo, self._hi = self._map_lo, self._map_hi  # the search box of the decision
+        self._plan: np.ndarray | None = None  # (n_waypoints, 3) [m] the last decision's waypoints
+
+    def _search_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box CMA-ES searches in: the map's, or ``reach_m`` around the UAV within it."""
+        reach = self.settings.reach_m
+        if not reach:
+            return self._map_lo, self._map_hi
+        here = self.view.position
+        lo, hi = self._map_lo.copy(), self._map_hi.copy()
+        lo[:2] = np.maximum(lo[:2], here[:2] - reach)
+        hi[:2] = np.minimum(hi[:2], here[:2] + reach)
+        return lo, hi
 
     def _to_xyz(self, u: np.ndarray) -> np.ndarray:
         pts = self._lo + np.clip(u.reshape(-1, 3), 0.0, 1.0) * (self._hi - self._lo)
@@ -117,12 +136,14 @@ class CMAESPlanner(ContinuousPlanner):
         self._belief = view.belief
         self._roi = view.belief_roi()
         self._before = view.roi_trace(self._belief.variance, self._roi)
+        self._lo, self._hi = self._search_box()
         here_u = (view.position - self._lo) / (self._hi - self._lo)
         if self._plan is None:
             x0 = np.tile(np.clip(here_u, 0, 1), cfg.n_waypoints)
-        else:  # warm start: the rest of the last plan, then its last point again
-            rest = self._plan[1:]
-            x0 = np.concatenate([rest, np.repeat(rest[-1:] if len(rest) else self._plan[-1:], 1, axis=0)]).ravel()
+        else:  # warm start: the rest of the last plan, then its last point again (in this box)
+            plan = np.clip((self._plan - self._lo) / (self._hi - self._lo), 0.0, 1.0)
+            rest = plan[1:]
+            x0 = np.concatenate([rest, np.repeat(rest[-1:] if len(rest) else plan[-1:], 1, axis=0)]).ravel()
         opts = {"bounds": [0.0, 1.0], "popsize": cfg.popsize, "maxfevals": cfg.max_evals,
                 "seed": int(self.rng.integers(1, 2**31 - 1)), "verbose": -9, "verb_log": 0,
                 "verb_disp": 0, "tolfun": 1e-12, "tolx": 1e-9}
@@ -136,5 +157,5 @@ class CMAESPlanner(ContinuousPlanner):
             if fs[i] < best_f:
                 best_u, best_f = np.asarray(cands[i]), fs[i]
         pts = self._to_xyz(best_u)
-        self._plan = (pts - self._lo) / (self._hi - self._lo)
+        self._plan = pts
         return self.affordable(pts[0])

@@ -17,6 +17,7 @@ leaves torch's setting alone), as ``ipp_bench._threads`` does for BLAS.
 from __future__ import annotations
 
 import hashlib
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,12 @@ from typing import Any
 import numpy as np
 
 from ..planners.base import GraphPlanner, RobotView, softmax
+
+#: nodes the network attends to by default: all of them up to 30 x 30 (1800), at 128 x 128 (32 768
+#: nodes) the 4096 nearest the UAV, a disc of about 64 m radius (benchmarks/RESULTS.md, issue 20)
+DEFAULT_CONTEXT_NODES = 4096
+MIN_CONTEXT_NODES = 64  # [-] a context smaller than this is hardly more than the k neighbours
+CONTEXT_CACHE = 256  # [-] context node sets kept (least recently used dropped), one per current node
 
 
 @dataclass(frozen=True)
@@ -34,8 +41,21 @@ class AttentionConfig:
     sample: bool = False  # draw the action from the policy instead of taking the argmax
     device: str = "cpu"  # torch device of the network
     threads: int = 1  # torch intra-op threads to set; 0 = leave torch's setting alone
+    # [-] the network attends to the roadmap's context_nodes nodes nearest the UAV (horizontally);
+    # 0 = every node. Roadmaps of at most this many nodes (every task up to 30 x 30: 1800) see all of
+    # them, so the decisions there are those of full attention, byte for byte.
+    context_nodes: int = DEFAULT_CONTEXT_NODES
 
     def __post_init__(self) -> None:
+        raw = self.context_nodes
+        try:  # an int, or its text from "attention:context_nodes=512"
+            context = int(raw.strip()) if isinstance(raw, str) else (int(raw) if int(raw) == raw else -1)
+        except (TypeError, ValueError, OverflowError):
+            context = -1
+        if isinstance(raw, bool) or context < 0 or 0 < context < MIN_CONTEXT_NODES:
+            raise ValueError(f"attention.context_nodes = {self.context_nodes!r} is invalid: expected 0 (every "
+                             f"node) or an integer >= {MIN_CONTEXT_NODES}")
+        object.__setattr__(self, "context_nodes", context)
         if isinstance(self.sample, str):  # from "attention:sample=true"
             object.__setattr__(self, "sample", self.sample.strip().lower() in ("1", "true", "yes", "on"))
         if not isinstance(self.threads, int) or self.threads < 0:
@@ -128,6 +148,34 @@ class AttentionPlanner(GraphPlanner):
             view.require_dense_belief(f"attention ({self._source})", "its rate feature is the far teacher's "
                                       "score, whose far targets' look gains read the full covariance")
         super().reset(view, seed)
+        self._contexts: OrderedDict[int, np.ndarray] = OrderedDict()  # current node -> its context nodes
+
+    def context(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``obs`` on the nodes the network attends to: the ``context_nodes`` roadmap nodes nearest the
+        current node horizontally (ties by index; the current node and its neighbours always among them),
+        their indices remapped; ``obs`` itself if the roadmap has no more nodes than that."""
+        n_ctx = self.settings.context_nodes
+        n = np.shape(obs["node_features"])[0]
+        if not n_ctx or n <= n_ctx:
+            return obs
+        cur = int(np.asarray(obs["current_node"]).reshape(-1)[0])
+        nb = np.asarray(obs["neighbours"], dtype=np.int64).reshape(-1)
+        nodes = self._contexts.get(cur)
+        if nodes is None:
+            pos = self.view.roadmap.positions
+            d2 = np.square(pos[:, 0] - pos[cur, 0]) + np.square(pos[:, 1] - pos[cur, 1])
+            nodes = np.union1d(np.argsort(d2, kind="stable")[:n_ctx], np.append(nb, cur))
+            self._contexts[cur] = nodes
+            if len(self._contexts) > CONTEXT_CACHE:
+                self._contexts.popitem(last=False)
+        else:
+            self._contexts.move_to_end(cur)
+        out = dict(obs)
+        out["node_features"] = np.asarray(obs["node_features"])[nodes]
+        out["pos_encoding"] = np.asarray(obs["pos_encoding"])[nodes]
+        out["current_node"] = np.searchsorted(nodes, np.asarray(obs["current_node"], dtype=np.int64))
+        out["neighbours"] = np.searchsorted(nodes, nb).reshape(np.shape(obs["neighbours"]))
+        return out
 
     def _check(self, obs: dict[str, np.ndarray]) -> None:
         shape = (obs["node_features"].shape[-1], obs["pos_encoding"].shape[-1])
@@ -148,6 +196,7 @@ class AttentionPlanner(GraphPlanner):
 
             obs = extend_observation(obs, self.view, self.net.cfg.node_dim, self.net.cfg.skip_teacher,
                                      self.net.cfg.invariant)
+        obs = self.context(obs)
         self._check(obs)
         torch = self._torch
         mask = np.asarray(obs["action_mask"]).astype(bool).reshape(-1)

@@ -27,7 +27,7 @@ def test_registry_and_specs():
     ("nope", "unknown planner 'nope'.*valid are"),
     ("mcts:sims=3", r"no setting \['sims'\].*simulations"),
     ("mcts:simulations=0", "mcts.simulations = 0 is invalid: expected an integer in \\[1, 100000\\]"),
-    ("mcts:simulations=many", "mcts.simulations = 'many' is invalid: expected a int"),
+    ("mcts:simulations=many", "mcts.simulations = 'many' is invalid: expected an integer"),
     ("mcts:gamma=1.5", r"mcts.gamma = 1.5 is invalid: expected a finite number in \(0, 1\]"),
     ("cmaes:max_evals=3", "cmaes.max_evals"),
     ("coverage:overlap=1", "coverage.overlap"),

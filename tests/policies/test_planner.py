@@ -124,3 +124,61 @@ def test_shipped_checkpoint_loads_and_acts():
     _, meta = load_checkpoint()
     assert "command" in meta and meta["command"].startswith("ipp-bench train")
     _fly(make_planner("attention"), steps=20)
+
+
+def test_the_context_is_the_nearest_nodes_and_the_network_sees_only_them():
+    """``context_nodes``: the network's keys are the nodes nearest the UAV; its logits equal the network
+    run on that sub-roadmap built by hand (distances, remapped indices), and a roadmap no larger than the
+    context is passed through untouched (full attention, byte for byte)."""
+    env = gym.make("ipp_bench/Grid30Eval-v1")  # 1800 nodes
+    obs, _ = env.reset(seed=3)
+    for a in (0, 5, 11):  # away from the start
+        obs, *_ = env.step(int(np.flatnonzero(env.unwrapped.action_masks())[a % 3]))
+    full = make_planner("attention")
+    full.reset(RobotView(env.unwrapped), 0)
+    assert full.settings.context_nodes >= 1800 and full.context(obs) is obs
+    planner = make_planner("attention:context_nodes=300")
+    view = RobotView(env.unwrapped)
+    planner.reset(view, 0)
+    from ipp_bench.policies.features import extend_observation
+
+    ext = extend_observation(obs, view, planner.net.cfg.node_dim, planner.net.cfg.skip_teacher, planner.net.cfg.invariant)
+    sub = planner.context(ext)
+    pos, cur = view.roadmap.positions, int(obs["current_node"][0])
+    d = np.hypot(pos[:, 0] - pos[cur, 0], pos[:, 1] - pos[cur, 1])
+    chosen = np.zeros(len(pos), bool)
+    chosen[np.flatnonzero(np.isin(np.arange(len(pos)), np.unique(np.r_[np.argsort(d, kind="stable")[:300],
+                                                                         obs["neighbours"], cur])))] = True
+    assert 300 <= sub["node_features"].shape[0] == chosen.sum() < 1800
+    assert d[chosen].max() <= d[~chosen].min() + 1e-9  # a disc around the UAV
+    nodes = np.flatnonzero(chosen)
+    assert nodes[int(sub["current_node"][0])] == cur
+    assert np.array_equal(nodes[sub["neighbours"]], obs["neighbours"])
+    assert np.array_equal(sub["node_features"], ext["node_features"][nodes])
+    assert np.array_equal(sub["pos_encoding"], obs["pos_encoding"][nodes])
+    with torch.inference_mode():
+        by_hand, _ = planner.net(
+            torch.as_tensor(ext["node_features"][nodes]).unsqueeze(0),
+            torch.as_tensor(obs["pos_encoding"][nodes], dtype=torch.float32).unsqueeze(0),
+            torch.as_tensor([int(np.flatnonzero(nodes == cur)[0])]),
+            torch.as_tensor(np.searchsorted(nodes, obs["neighbours"])).unsqueeze(0),
+            torch.as_tensor(obs["action_mask"].astype(bool)).unsqueeze(0),
+            torch.as_tensor(np.asarray(obs["budget"], dtype=np.float32).reshape(1, 1)))
+    got = planner._logits(obs)
+    allowed = obs["action_mask"].astype(bool)
+    assert np.allclose(got[allowed], by_hand[0].numpy()[allowed], atol=1e-5)
+    assert not np.allclose(got[allowed], full._logits(obs)[allowed], atol=1e-5)  # the context matters
+
+
+@pytest.mark.parametrize("bad", ["-1", "10"])
+def test_a_bad_context_size_is_refused_in_one_line(bad):
+    with pytest.raises(ValueError, match=r"attention.context_nodes = .* is invalid: expected 0 \(every node\) "
+                                         r"or an integer >= 64") as err:
+        make_planner(f"attention:context_nodes={bad}")
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("bad", ["1.5", "many"])
+def test_a_context_size_that_is_no_integer_is_refused_in_one_line(bad):
+    with pytest.raises(ValueError, match=rf"attention.context_nodes = '{bad}' is invalid: expected an integer$"):
+        make_planner(f"attention:context_nodes={bad}")

@@ -248,28 +248,32 @@ class PersistentErrorBelief:
     Model: a read-out row w at resolution factor f measures ``z = w^T (x + e_f) + v``, where x (n,)
     is the field, e_f (n,) the camera's persistent per-cell error at factor f (the same texture seen
     again at that resolution is misread the same way) and v ~ N(0, r phi(z)) the look-to-look noise
-    (r: the sensor's white variance ``noise_variance``). The errors of a cell c at the two factors
-    are jointly Gaussian, independent of x and of other cells, with variances s_f phi(t_c) and
-    correlation rho (``SensorConfig.persistent_var``, ``persistent_var_binned``,
-    ``persistent_corr``); phi(t) = :func:`value_scale` (``noise_floor``): a cell with nothing to
-    misread errs less. t is plugged in from the data: the value of the row that first saw the cell
-    (for its error's prior, set then: until a cell is seen its error is independent of everything,
-    so setting its prior at that moment changes nothing else) and each row's own value (for v).
+    (r: the sensor's white variance ``noise_variance``). The error of cell c is
+    ``e_f,c = sqrt(s_f phi(t_c)) u_f,c``: s_f its variance at t = 0.5 (``SensorConfig.persistent_var``,
+    ``persistent_var_binned``), phi(t) = :func:`value_scale` (``noise_floor``, a cell with nothing to
+    misread errs less), and u a unit-variance Gaussian field, independent of x, with
+    ``corr(u_f,c, u_g,c') = C_cc' rho_fg``: C the spatial correlation r^(d^2) of
+    :func:`~ipp_bench.sensor.persistent_correlation` (``persistent_neighbour_corr`` = r, so the cells of
+    a binned block share much of their error; the identity for r = 0) and rho_fg = 1 for f = g, else
+    ``persistent_corr``. t_c is plugged in from the data: the value of the row that first saw the cell.
 
-    The state is ``[x, e_f1, e_f2, ...]`` (one block per factor with s_f > 0); a row's weights on it
-    are ``[w, w]`` over (x cells, e_f cells), with R = r phi(z). The update is
-    :meth:`GPBelief.update_local` on the augmented state (so :func:`gain_factor`, the one update)
-    and exact for the model: equal to the batch GP posterior of x under the marginal covariance of z
-    (``tests/test_belief.py``). After every update the field marginal (mean, covariance of x) is
-    written into ``field``, the belief that planners, observations and metrics read. n (1 + factors)
-    states: 675 on 15 x 15 with two factors.
+    The state is ``[x, u_f1, u_f2, ...]`` (one block per factor with s_f > 0), its prior the field's
+    and the u field's, both known from the start; a row's weights on it are ``[w, w * sd_f]`` over
+    (x cells, u_f cells), sd_f,c = sqrt(s_f phi(t_c)) fixed once the cell is first seen, with
+    R = r phi(z). The update is :meth:`GPBelief.update_local` on the augmented state (so
+    :func:`gain_factor`, the one update) and exact for the model: equal to the batch GP posterior of x
+    under the marginal covariance of z (``tests/test_belief.py``). After every update the field
+    marginal (mean, covariance of x) is written into ``field``, the belief that planners, observations
+    and metrics read. n (1 + factors) states: 675 on 15 x 15 with two factors.
 
     Args:
-        field: the prior belief over the field (n cells); updated in place from then on.
+        field: the prior belief over the field (n cells, ``field.shape`` its grid); updated in place.
         sensor: the :class:`~ipp_bench.config.SensorConfig` with the camera's error constants.
     """
 
     def __init__(self, field: GPBelief, sensor):
+        from .sensor import persistent_correlation
+
         self.field = field
         self.floor = float(sensor.noise_floor)
         n = field.n
@@ -282,21 +286,27 @@ class PersistentErrorBelief:
         mean[:n] = field.mean
         cov = np.zeros((N, N))
         cov[:n, :n] = field.cov
+        rows, cols = np.divmod(np.arange(n), field.shape[1])
+        C = persistent_correlation(rows, cols, float(sensor.persistent_neighbour_corr))
+        for f, o in self.offset.items():
+            for g, p in self.offset.items():
+                cov[o:o + n, p:p + n] = C if f == g else self.corr * C
         self.state = GPBelief(mean, cov)
-        self.seen = np.zeros(n, dtype=bool)  # cells whose error prior is set
+        self.sd = {f: np.zeros(n) for f in self.offset}  # sd_f,c, set when cell c is first seen
+        self.seen = np.zeros(n, dtype=bool)
 
     def _rows(self, observations, zs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The read-outs on the augmented state: (state columns, W over them, R, z), priors set first."""
+        """The read-outs on the augmented state: (state columns, W over them, R, z), scales set first."""
         parts = []
         for o, z in zip(observations, zs):
             z = np.asarray(z, dtype=np.float64).reshape(-1)
             white = o.var if o.persistent is None else o.var - o.persistent
             if self.offset:
-                self._set_priors(o, z)
+                self._set_scales(o, z)
             R = white * value_scale(z, self.floor)
             if o.factor in self.offset:
                 cols = np.concatenate([o.cells, o.cells + self.offset[o.factor]])
-                parts.append((cols, np.hstack([o.weights, o.weights]), R, z))
+                parts.append((cols, np.hstack([o.weights, o.weights * self.sd[o.factor][o.cells]]), R, z))
             else:
                 parts.append((o.cells, o.weights, R, z))
         if len(parts) == 1:
@@ -309,8 +319,8 @@ class PersistentErrorBelief:
             row += w.shape[0]
         return cols, W, np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts])
 
-    def _set_priors(self, obs, z: np.ndarray) -> None:
-        """Error priors of the cells ``obs`` sees for the first time: variance s_f phi(t), t their row's value."""
+    def _set_scales(self, obs, z: np.ndarray) -> None:
+        """sd_f of the cells ``obs`` sees for the first time: sqrt(s_f phi(t)), t their row's value."""
         first = ~self.seen[obs.cells]
         if not first.any():
             return
@@ -318,13 +328,8 @@ class PersistentErrorBelief:
         for w, value in zip(obs.weights, z):  # each cell lies in one row of a read-out
             t[w > 0] = value
         cells, scale = obs.cells[first], value_scale(t[first], self.floor)
-        cov = self.state.cov
-        sd = {f: np.sqrt(self.variances[f] * scale) for f in self.offset}
-        for f, o in self.offset.items():
-            cov[cells + o, cells + o] = sd[f] ** 2
-        if len(self.offset) == 2 and self.corr > 0:
-            (f1, o1), (f2, o2) = self.offset.items()
-            cov[cells + o1, cells + o2] = cov[cells + o2, cells + o1] = self.corr * sd[f1] * sd[f2]
+        for f in self.offset:
+            self.sd[f][cells] = np.sqrt(self.variances[f] * scale)
         self.seen[cells] = True
 
     def innovation(self, observations, zs) -> tuple[np.ndarray, np.ndarray]:

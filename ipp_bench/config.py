@@ -166,6 +166,10 @@ class SensorConfig:
     persistent_var: float = 0.0  # [field units^2] per cell, full-resolution read-outs (f = 1), at t = 0.5
     persistent_var_binned: float = 0.0  # [field units^2] per cell, binned read-outs (f = binning), at t = 0.5
     persistent_corr: float = 0.0  # [-] correlation of a cell's persistent errors at the two factors
+    # the persistent errors of neighbouring cells correlate (the cells of a binned block share much of
+    # theirs): corr = r^(d^2), d the distance in cells (a squared-exponential field whose edge-neighbour
+    # value is r); 0: independent cells
+    persistent_neighbour_corr: float = 0.0  # [-] r in [0, 1)
     # camera errors shrink where a cell is empty or full (no plant margins to misread): with the
     # persistent states, every variance is scaled by k + (1 - k) 4 t (1 - t), t the read-out's value
     noise_floor: float = 1.0  # [-] k in (0, 1]: variance at t = 0 or 1 relative to t = 0.5; 1: same everywhere
@@ -186,10 +190,13 @@ class SensorConfig:
                 _fail("sensor", name, getattr(self, name), "a finite number >= 0 [field units^2]")
         if not 0.0 <= _finite("sensor", "persistent_corr", self.persistent_corr) <= 1.0:
             _fail("sensor", "persistent_corr", self.persistent_corr, "a number in [0, 1]")
+        if not 0.0 <= _finite("sensor", "persistent_neighbour_corr", self.persistent_neighbour_corr) < 1.0:
+            _fail("sensor", "persistent_neighbour_corr", self.persistent_neighbour_corr, "a number in [0, 1)")
         if not 0.0 < _finite("sensor", "noise_floor", self.noise_floor) <= 1.0:
             _fail("sensor", "noise_floor", self.noise_floor, "a number in (0, 1]")
         _plain(self, "fov_deg", "noise_a", "noise_b", "binning_altitude", "binning", "binning_noise_exponent",
-               "persistent_var", "persistent_var_binned", "persistent_corr", "noise_floor")
+               "persistent_var", "persistent_var_binned", "persistent_corr", "persistent_neighbour_corr",
+               "noise_floor")
 
     def persistent(self, factor: int) -> float:
         """Persistent per-cell error variance of read-outs at resolution factor ``factor`` (at t = 0.5)."""

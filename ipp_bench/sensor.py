@@ -10,8 +10,11 @@ v1 as in the lineage's code).
 
 A camera can also have a *persistent* error: a per-cell error e_c that every look at the same
 resolution factor repeats (``SensorConfig.persistent_var``, ``persistent_var_binned``: its variance
-s_f per cell). A read-out row w then has error w^T e + v, and its variance for one look is
-``var = f^e a (1 - exp(-b h)) + s_f sum(w^2)`` (what planners predict with); ``persistent`` is
+s_f per cell, and the correlation of neighbouring cells' errors, ``persistent_neighbour_corr``). A
+read-out row w then has error w^T e + v, and its variance for one look is
+``var = f^e a (1 - exp(-b h)) + s_f w^T C w`` (what planners predict with; C the errors' correlation
+over the row's cells, :func:`persistent_correlation`, so w^T C w = sum(w^2) for independent cells and
+a binned 2 x 2 block keeps (1 + 2 r + r^2) / 4 of a cell's variance, 0.63 at r = 0.59); ``persistent`` is
 the second term, which :class:`~ipp_bench.belief.PersistentErrorBelief` carries as states instead of
 as noise, so that repeated looks are not taken as independent. :meth:`Sensor.measure` (the graph
 tasks' simulated read-out) draws independent noise of variance ``var`` at every look: only the
@@ -60,6 +63,16 @@ class Observation:
         H = np.zeros((self.m, n))
         H[:, self.cells] = self.weights
         return H
+
+
+def persistent_correlation(rows: np.ndarray, cols: np.ndarray, r: float) -> np.ndarray:
+    """(n, n) correlation of the persistent errors of the cells at (``rows``, ``cols``): r^(d^2), d their
+    distance in cells (``SensorConfig.persistent_neighbour_corr``; the identity for r = 0)."""
+    rows, cols = np.asarray(rows, dtype=np.float64), np.asarray(cols, dtype=np.float64)
+    if r <= 0:
+        return np.eye(rows.size)
+    d2 = np.square(rows[:, None] - rows[None, :]) + np.square(cols[:, None] - cols[None, :])
+    return np.power(float(r), d2)
 
 
 def stack(observations: list[Observation]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -131,20 +144,23 @@ class Sensor:
             if len(self._cache) > 65536:
                 self._cache.clear()
             self._cache[key] = layout
-        cells, W = layout
+        cells, W, share = layout
         factor = self.cfg.binning if binned else 1
         var = np.full(W.shape[0], self.noise_variance(h))
         s = self.cfg.persistent(factor)
         persistent = None
         if s > 0:
-            persistent = s * np.einsum("ij,ij->i", W, W)
+            persistent = s * share
             var += persistent
             persistent.flags.writeable = False
         var.flags.writeable = False
         return Observation(cells=cells, weights=W, var=var, altitude=h, factor=factor, persistent=persistent)
 
-    def _layout(self, r0: int, r1: int, c0: int, c1: int, binned: bool) -> tuple[np.ndarray, np.ndarray]:
-        """Observed cells and the rows of H over them (cached: they depend on the ranges only)."""
+    def _layout(self, r0: int, r1: int, c0: int, c1: int,
+                binned: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Observed cells, the rows of H over them and each row's share of the per-cell persistent
+        variance, w^T C w with C the errors' correlation (:func:`persistent_correlation`; sum(w^2)
+        for independent cells) (cached: they depend on the ranges only)."""
         rr, cc = np.meshgrid(np.arange(r0, r1 + 1), np.arange(c0, c1 + 1), indexing="ij")
         cells = (rr * self.grid.cols + cc).ravel()
         q = cells.size
@@ -159,9 +175,14 @@ class Sensor:
             W /= W.sum(axis=1, keepdims=True)
         else:
             W = np.eye(q)
-        for a in (cells, W):
+        r = self.cfg.persistent_neighbour_corr
+        if r > 0 and binned:  # a block's cells share their error: w^T C w over the footprint's cells
+            share = np.einsum("ij,jk,ik->i", W, persistent_correlation(rr.ravel(), cc.ravel(), r), W)
+        else:  # one cell per row (C_cc = 1), or independent cells
+            share = np.einsum("ij,ij->i", W, W)
+        for a in (cells, W, share):
             a.flags.writeable = False
-        return cells, W
+        return cells, W, share
 
     def matrix(self, xyz) -> np.ndarray:
         """Dense H (m, n) for a read-out at ``xyz``; (0, n) when the footprint misses the map."""

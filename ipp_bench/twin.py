@@ -15,13 +15,15 @@ The error model:
   ``persistent_var_binned``, phi(t) = :func:`~ipp_bench.belief.value_scale` (``noise_floor``) at
   the cell's true value x_c (a cell with nothing to misread errs less), corr(u_1,c, u_2,c) =
   ``persistent_corr``, and each u_f a unit-variance Gaussian field over the cells with a squared-
-  exponential correlation whose value between edge-neighbours is ``neighbour_corr`` (0.59,
-  measured between neighbouring cells of binned read-outs, ``benchmarks/RESULTS.md``, "What the
-  camera gets wrong": the cells of a binned 2 x 2 block share much of their error);
+  exponential correlation whose value between edge-neighbours is ``neighbour_corr`` (the task's
+  ``persistent_neighbour_corr``, 0.59, measured between neighbouring cells of binned read-outs,
+  ``benchmarks/RESULTS.md``, "What the camera gets wrong": the cells of a binned 2 x 2 block share
+  much of their error);
 * white noise on top: ``N(0, f^e a (1 - exp(-b h)) phi(w . x))`` per read-out row w.
 
 A row measures ``z = w . (x + e_f) + v``. The belief is the task's (the deployment's model,
-:class:`~ipp_bench.belief.PersistentErrorBelief`), not told about the spatial correlation.
+:class:`~ipp_bench.belief.PersistentErrorBelief`), which models the same correlation: on the twin the
+belief is the sensor's own model, up to the value t at which each cell's error scale is plugged in.
 """
 
 from __future__ import annotations
@@ -30,9 +32,10 @@ import math
 
 import numpy as np
 
-from .belief import cell_centres, value_scale
+from .belief import value_scale
 from .legs import ContinuousLeg, continuous_durations
 from .mission import LegOutcome, Mission
+from .sensor import persistent_correlation
 
 NEIGHBOUR_CORR = 0.59  # [-] correlation of the persistent errors of edge-neighbouring cells (measured, f = 2)
 
@@ -60,11 +63,9 @@ class CameraErrorLegs:
         """Draws the episode's persistent errors from ``mission.rng`` (before any read-out); at rest."""
         cfg, grid = mission.sensor.cfg, mission.config.grid
         n = grid.n_cells
-        xy = cell_centres((grid.rows, grid.cols), grid.resolution)
-        if self.neighbour_corr > 0.0:
-            ell2 = grid.resolution ** 2 / (2.0 * math.log(1.0 / self.neighbour_corr))
-            d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)
-            L = np.linalg.cholesky(np.exp(-d2 / (2.0 * ell2)) + 1e-9 * np.eye(n))
+        if self.neighbour_corr > 0.0:  # the belief's own correlation (PersistentErrorBelief)
+            rows, cols = np.divmod(np.arange(n), grid.cols)
+            L = np.linalg.cholesky(persistent_correlation(rows, cols, self.neighbour_corr) + 1e-9 * np.eye(n))
         else:
             L = np.eye(n)
         rho = float(cfg.persistent_corr)

@@ -149,13 +149,14 @@ def test_batched_trace_reductions_match_one_by_one():
 
 # -- the camera's persistent error as states (PersistentErrorBelief) ---------------------------------
 
-def _camera_model(floor=0.3, corr=0.7):
+def _camera_model(floor=0.3, corr=0.7, neighbour=0.0):
     from ipp_bench.config import GridConfig, SensorConfig
     from ipp_bench.sensor import Sensor
 
     grid = GridConfig(6, 7, 2.5)
     cfg = SensorConfig(noise_a=0.004, noise_b=0.1, binning_altitude=10.0, binning=2, binning_noise_exponent=-1.0,
-                       persistent_var=0.01, persistent_var_binned=0.03, persistent_corr=corr, noise_floor=floor)
+                       persistent_var=0.01, persistent_var_binned=0.03, persistent_corr=corr, noise_floor=floor,
+                       persistent_neighbour_corr=neighbour)
     return grid, cfg, Sensor(grid, cfg)
 
 
@@ -164,14 +165,16 @@ def _phi(t, k):
     return k + (1 - k) * 4 * t * (1 - t)
 
 
+@pytest.mark.parametrize("neighbour", [0.0, 0.59])
 @pytest.mark.parametrize("seed", range(4))
-def test_persistent_error_states_equal_the_batch_posterior(seed):
+def test_persistent_error_states_equal_the_batch_posterior(seed, neighbour):
     """Sequential augmented updates = the batch GP posterior of the field under the marginal
-    covariance of z = H x + E e + v, built here from the model's definition (not from the code)."""
+    covariance of z = H x + E e + v, built here from the model's definition (not from the code):
+    e_f,c = sqrt(s_f phi(t_c)) u_f,c, corr(u_f,c, u_g,c') = r^(d_cc'^2) (rho if f != g)."""
     from ipp_bench.belief import PersistentErrorBelief
 
     rng = np.random.default_rng(seed)
-    grid, cfg, sensor = _camera_model()
+    grid, cfg, sensor = _camera_model(neighbour=neighbour)
     field = GPBelief.from_grid((grid.rows, grid.cols), grid.resolution, 6.0, 0.2, 0.5, 1e-4)
     mean0, K = field.mean.copy(), field.cov.copy()
     model = PersistentErrorBelief(field, cfg)
@@ -200,9 +203,14 @@ def test_persistent_error_states_equal_the_batch_posterior(seed):
         z[i], R[i] = zi, white * _phi(zi, cfg.noise_floor)
     Se = np.zeros((2 * n, 2 * n))
     for c, t in first.items():
-        s1, s2 = cfg.persistent_var * _phi(t, cfg.noise_floor), cfg.persistent_var_binned * _phi(t, cfg.noise_floor)
-        Se[c, c], Se[n + c, n + c] = s1, s2
-        Se[c, n + c] = Se[n + c, c] = cfg.persistent_corr * np.sqrt(s1 * s2)
+        for d, t2 in first.items():
+            (rc, cc), (rd, cd) = divmod(c, grid.cols), divmod(d, grid.cols)
+            space = neighbour ** ((rc - rd) ** 2 + (cc - cd) ** 2) if neighbour else float(c == d)
+            for i, si in enumerate((cfg.persistent_var, cfg.persistent_var_binned)):
+                for j, sj in enumerate((cfg.persistent_var, cfg.persistent_var_binned)):
+                    rho = 1.0 if i == j else cfg.persistent_corr
+                    Se[i * n + c, j * n + d] = rho * space * np.sqrt(si * _phi(t, cfg.noise_floor) * sj
+                                                                     * _phi(t2, cfg.noise_floor))
     mean_b, cov_b = batch_posterior(mean0, K, H, z, E @ Se @ E.T + np.diag(R))
     np.testing.assert_allclose(field.mean, mean_b, rtol=0, atol=1e-9)
     np.testing.assert_allclose(field.cov, cov_b, rtol=0, atol=1e-10)
@@ -266,3 +274,46 @@ def test_nis_is_chi_square_with_the_error_states_and_not_without():
     assert chi2.ppf(0.0005, dof) <= nis <= chi2.ppf(0.9995, dof), nis / dof
     nis, dof = totals["white"]
     assert nis < chi2.ppf(0.0005, dof), nis / dof  # repeated looks agree more than white noise would
+
+
+def test_nis_is_chi_square_when_neighbouring_cells_share_their_error_and_not_if_taken_independent():
+    """Errors drawn with neighbouring cells correlated (r = 0.59, the camera's measured value): the
+    belief that models it gives a chi-square NIS (two-sided 99.9 %); the belief that takes the cells'
+    errors as independent (r = 0) sees binned read-outs disagree more than it predicts, above it."""
+    from scipy.stats import chi2
+
+    from ipp_bench.belief import PersistentErrorBelief
+    from ipp_bench.sensor import persistent_correlation
+
+    r = 0.59
+    grid, cfg, sensor = _camera_model(floor=1.0, corr=0.7, neighbour=r)
+    _, cfg0, sensor0 = _camera_model(floor=1.0, corr=0.7, neighbour=0.0)
+    rng = np.random.default_rng(11)
+    spots = [(9.0, 7.5, 14.0), (6.0, 9.0, 14.0), (8.0, 7.0, 8.0)]
+    rows, cols = np.divmod(np.arange(grid.n_cells), grid.cols)
+    C = persistent_correlation(rows, cols, r)
+    s1, s2 = cfg.persistent_var, cfg.persistent_var_binned
+    c12 = cfg.persistent_corr * np.sqrt(s1 * s2)
+    joint = np.block([[s1 * C, c12 * C], [c12 * C, s2 * C]])
+    totals = {"modelled": [0.0, 0], "independent": [0.0, 0]}
+    for _ in range(60):
+        field = GPBelief.from_grid((grid.rows, grid.cols), grid.resolution, 6.0, 0.001, 0.5, 1e-5)  # errors dominate
+        x = rng.multivariate_normal(field.mean, field.cov)
+        n = field.n
+        e = rng.multivariate_normal(np.zeros(2 * n), joint)
+        models = {"modelled": (PersistentErrorBelief(field, cfg), sensor),
+                  "independent": (PersistentErrorBelief(field.copy(), cfg0), sensor0)}
+        for _ in range(4):
+            obs = [sensor.observe(p) for p in spots]
+            zs = [o.weights @ (x[o.cells] + e[o.cells + (0 if o.factor == 1 else n)])
+                  + rng.normal(0, np.sqrt(o.var - o.persistent)) for o in obs]
+            for name, (model, sens) in models.items():
+                own = [sens.observe(p) for p in spots]  # each belief's own sensor model of the same read-outs
+                nis, dof = model.normalised_innovation(own, zs)
+                totals[name][0] += nis
+                totals[name][1] += dof
+                model.update(own, zs)
+    nis, dof = totals["modelled"]
+    assert chi2.ppf(0.0005, dof) <= nis <= chi2.ppf(0.9995, dof), nis / dof
+    nis, dof = totals["independent"]
+    assert nis > chi2.ppf(0.9995, dof), nis / dof

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..config import IPPConfig
 from ..mission import Mission
-from ..twin import NEIGHBOUR_CORR, CameraErrorLegs
+from ..twin import CameraErrorLegs
 from .graph import GraphIPPEnv
 
 
@@ -28,18 +28,21 @@ class TwinIPPEnv(GraphIPPEnv):
     As :class:`~ipp_bench.envs.graph.GraphIPPEnv`.
 
     ## Arguments
-    As :class:`~ipp_bench.envs.graph.GraphIPPEnv`, and ``neighbour_corr`` (default 0.59): the
-    correlation of neighbouring cells' persistent errors.
+    As :class:`~ipp_bench.envs.graph.GraphIPPEnv`, and ``neighbour_corr`` (default: the task's
+    ``sensor.persistent_neighbour_corr``, 0.59, which the belief models too): the correlation of
+    neighbouring cells' persistent errors that the twin's camera draws.
 
     ## Version History
     - v1: initial release (the constants of ``MuJoCoWeed15-v1``).
     """
 
     def __init__(self, config: IPPConfig | dict | None = None, render_mode: str | None = None,
-                 task_id: str | None = None, neighbour_corr: float = NEIGHBOUR_CORR, **overrides: Any):
-        CameraErrorLegs(neighbour_corr)  # a bad value fails here, naming itself
+                 task_id: str | None = None, neighbour_corr: float | None = None, **overrides: Any):
+        if neighbour_corr is not None:
+            CameraErrorLegs(neighbour_corr)  # a bad value fails here, naming itself
         super().__init__(config, render_mode=render_mode, task_id=task_id, **overrides)
-        self.neighbour_corr = float(neighbour_corr)
+        self.neighbour_corr = float(self.config.sensor.persistent_neighbour_corr if neighbour_corr is None
+                                    else neighbour_corr)
 
     def _make_mission(self, truth: np.ndarray, rng: np.random.Generator, start_xyz: np.ndarray) -> Mission:
         return Mission(self.config, truth, rng, start_xyz, sensor=self.sensor,

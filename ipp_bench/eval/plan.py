@@ -103,6 +103,7 @@ DIGEST_ERA_ADDED_FIELDS: tuple[tuple[str, ...], ...] = (
     ("nugget", "binning_noise_exponent", "episode_seeds"),  # benchmark v1
     ("persistent_var", "persistent_var_binned", "persistent_corr", "noise_floor"),  # camera-error states
     ("belief", "belief_window"),  # the window belief (issue 20)
+    ("persistent_neighbour_corr",),  # binned read-outs share their persistent error (issue 18)
 )
 
 

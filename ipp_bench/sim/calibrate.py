@@ -399,6 +399,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--field-nugget", type=float, default=None,
                    help="the field family's own nugget (default: refit as `ipp-bench fit-prior` does, so that the "
                         "two commands compose in either order)")
+    p.add_argument("--neighbour-corr", type=float, default=None,
+                   help="fit the error model with this correlation of neighbouring cells' persistent errors "
+                        "(default: the task's persistent_neighbour_corr; it is measured, never fitted, and not written)")
     p.add_argument("--write", action="store_true", help="write the fitted constants into the task file")
     args = p.parse_args(argv)
     if args.fields < 1 or args.positions < 1 or args.missions < 1 or args.evaluations < 1:
@@ -407,6 +410,8 @@ def main(argv: list[str] | None = None) -> int:
     factors = [int(v) for v in args.factors.split(",")]
     if any(h <= 0 for h in altitudes) or any(f < 1 for f in factors):
         p.error("--altitudes must be > 0 m and --factors >= 1")
+    if args.neighbour_corr is not None and not 0.0 <= args.neighbour_corr < 1.0:
+        p.error(f"--neighbour-corr {args.neighbour_corr} is invalid: expected a number in [0, 1)")
     from ipp_bench.envs.registry import task_spec
 
     spec = task_spec(args.task)
@@ -428,6 +433,9 @@ def main(argv: list[str] | None = None) -> int:
     else:
         field_nugget = args.field_nugget
     config = dataclasses.replace(spec.config, gp=dataclasses.replace(spec.config.gp, nugget=field_nugget))
+    if args.neighbour_corr is not None:
+        config = dataclasses.replace(config, sensor=dataclasses.replace(
+            config.sensor, persistent_neighbour_corr=args.neighbour_corr))
     missions = fly_calibration_missions(args.task, args.missions)
     floor = noise_floor(missions)
     const, nll = fit_error_model(missions, config, b, floor, args.evaluations)

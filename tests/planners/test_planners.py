@@ -110,6 +110,26 @@ def test_cmaes_stays_in_bounds_and_writes_no_files(tmp_path, monkeypatch):
     assert env.mission.metrics() == result.final
 
 
+def test_cmaes_reach_keeps_every_waypoint_within_it_of_the_uav():
+    """``reach_m``: the whole plan (not only the flown waypoint) lies within the reach of the position
+    the decision was taken at, on a map larger than the box; 0 is the whole map (the test above)."""
+    env = make_env("ipp_bench/Grid30Eval-v1", budget_s=60.0)
+    env.reset(seed=1)
+    planner = make_planner("cmaes:max_evals=24,reach_m=10")
+    planner.reset(RobotView(env), 1)
+    far = 0.0
+    while True:
+        here = env.mission.position.copy()
+        wp = planner.next_waypoint()
+        if wp is None:
+            break
+        plan = planner._plan
+        assert np.all(np.abs(plan[:, :2] - here[:2]) <= 10.0 + 1e-9), (here, plan)
+        far = max(far, float(np.abs(plan[:, :2] - here[:2]).max()))
+        env.mission.fly_to(wp)
+    assert far > 5.0  # the box is used, not collapsed onto the UAV
+
+
 def test_view_has_no_truth():
     env = make_env(TASK)
     env.reset(seed=0)

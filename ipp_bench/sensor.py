@@ -202,3 +202,17 @@ class Sensor:
         if obs is None:
             return None, None
         return obs, self.noisy_from_cell_values(obs, truth, rng)
+
+
+def restrict(obs: Observation, seen: np.ndarray) -> Observation | None:
+    """``obs`` without the measurements (rows of H) that involve an unseen cell; None if none is left."""
+    cell_seen = seen[obs.cells]
+    if cell_seen.all():
+        return obs
+    rows = ~np.any((obs.weights > 0) & ~cell_seen[None, :], axis=1)
+    if not rows.any():
+        return None
+    W = obs.weights[rows]
+    cols = np.any(W > 0, axis=0)
+    return Observation(cells=obs.cells[cols], weights=W[:, cols], var=obs.var[rows], altitude=obs.altitude,
+                       factor=obs.factor, persistent=None if obs.persistent is None else obs.persistent[rows])

@@ -20,7 +20,8 @@ class TwinIPPEnv(GraphIPPEnv):
     (``MuJoCoWeed15-v1``'s grid, roadmap, weed-patch field family, fitted prior, threshold and
     camera-error constants, copied into its task file), with a sensor that draws the calibrated
     camera error (:class:`~ipp_bench.twin.CameraErrorLegs`: persistent per cell, resolution and
-    episode, spatially correlated so that binned blocks share it, white noise on top). Legs are
+    episode, spatially correlated so that binned blocks share it, white noise on top, and the rows of
+    the cells a tilted frame misses dropped). Legs are
     straight at the mission speed (no velocity ramps, wind or estimator). The belief is the
     deployment's (camera-error states).
 

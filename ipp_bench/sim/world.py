@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from ipp_bench.config import GridConfig, SensorConfig
-from ipp_bench.sensor import Observation, Sensor
+from ipp_bench.sensor import Observation, Sensor, restrict
 from ipp_bench.sim.camera import CameraModel, EpisodeConditions, form_image, motion_blur_px
 from ipp_bench.sim.controller import ControllerGains
 from ipp_bench.sim.disturbance import DisturbanceConfig
@@ -374,17 +374,3 @@ class WeedWorld:
 
     def close(self) -> None:
         self.renderer.close()
-
-
-def restrict(obs: Observation, seen: np.ndarray) -> Observation | None:
-    """``obs`` without the measurements (rows of H) that involve an unseen cell; None if none is left."""
-    cell_seen = seen[obs.cells]
-    if cell_seen.all():
-        return obs
-    rows = ~np.any((obs.weights > 0) & ~cell_seen[None, :], axis=1)
-    if not rows.any():
-        return None
-    W = obs.weights[rows]
-    cols = np.any(W > 0, axis=0)
-    return Observation(cells=obs.cells[cols], weights=W[:, cols], var=obs.var[rows], altitude=obs.altitude,
-                       factor=obs.factor, persistent=None if obs.persistent is None else obs.persistent[rows])

@@ -204,6 +204,19 @@ class Sensor:
         return obs, self.noisy_from_cell_values(obs, truth, rng)
 
 
+def rays_on_ground(rays: np.ndarray, cam_pos, cam_mat) -> np.ndarray | None:
+    """(K, 2) ground points (x, y) [m] where camera-frame ``rays`` (K, 3; looking along -z) from a camera at
+    ``cam_pos`` with orientation ``cam_mat`` (columns: the camera's axes in the world) meet the plane z = 0;
+    None when a ray misses the ground. The deployment's frame corners and the twin's tilted frame."""
+    R = np.asarray(cam_mat, dtype=np.float64).reshape(3, 3)
+    d = rays @ R.T
+    pz = float(cam_pos[2])
+    if pz <= 0.0 or np.any(d[:, 2] >= -1e-6):
+        return None
+    t = -pz / d[:, 2]
+    return np.stack([cam_pos[0] + t * d[:, 0], cam_pos[1] + t * d[:, 1]], axis=1)
+
+
 def restrict(obs: Observation, seen: np.ndarray) -> Observation | None:
     """``obs`` without the measurements (rows of H) that involve an unseen cell; None if none is left."""
     cell_seen = seen[obs.cells]

@@ -39,7 +39,7 @@ import numpy as np
 from .belief import value_scale
 from .legs import ContinuousLeg, continuous_durations
 from .mission import LegOutcome, Mission
-from .sensor import persistent_correlation, restrict
+from .sensor import persistent_correlation, rays_on_ground, restrict
 
 NEIGHBOUR_CORR = 0.59  # [-] correlation of the persistent errors of edge-neighbouring cells (measured, f = 2)
 #: [deg] sd of each horizontal component of the drone's tilt when the camera reads (MuJoCoWeed15-v1: median
@@ -65,6 +65,8 @@ class CameraErrorLegs:
         self.neighbour_corr, self.ramp_s, self.step_s = float(neighbour_corr), float(ramp_s), float(step_s)
         if not (isinstance(tilt_sd_deg, (int, float)) and 0.0 <= tilt_sd_deg < 30.0):
             raise ValueError(f"tilt_sd_deg = {tilt_sd_deg!r} is invalid: expected a number in [0, 30) degrees")
+        if not (isinstance(min_coverage, (int, float)) and 0.0 < min_coverage <= 1.0):
+            raise ValueError(f"min_coverage = {min_coverage!r} is invalid: expected a number in (0, 1]")
         self.tilt_sd, self.min_coverage = math.radians(float(tilt_sd_deg)), float(min_coverage)
         self.errors: dict[int, np.ndarray] = {}
         self.ref_pos = np.zeros(3)
@@ -141,8 +143,10 @@ class CameraErrorLegs:
         K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
         R = np.eye(3) + s_ang * K + (1.0 - body_z[2]) * (K @ K)
         tan = math.tan(math.radians(mission.sensor.cfg.fov_deg) / 2.0)
-        rays = (R @ np.array([[-tan, -tan, -1.0], [tan, -tan, -1.0], [tan, tan, -1.0], [-tan, tan, -1.0]]).T).T
-        quad = p[:2] + rays[:, :2] * (p[2] / -rays[:, 2:3])
+        corners = np.array([[-tan, -tan, -1.0], [tan, -tan, -1.0], [tan, tan, -1.0], [-tan, tan, -1.0]])
+        quad = rays_on_ground(corners, p, R)  # counter-clockwise on the ground
+        if quad is None:
+            return ~seen
         res, ncols = mission.config.grid.resolution, mission.config.grid.cols
         offs = (np.arange(4) + 0.5) / 4.0
         rr, cc = np.divmod(np.asarray(cells), ncols)

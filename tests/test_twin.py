@@ -111,3 +111,12 @@ def test_the_twin_task_is_registered_and_bad_neighbour_corr_is_one_line():
     assert type(env.mission.platform) is CameraErrorLegs
     with pytest.raises(ValueError, match=r"neighbour_corr = 1.5 is invalid: expected a number in \[0, 1\)"):
         gym.make(TASK, neighbour_corr=1.5)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"tilt_sd_deg": -1.0}, r"tilt_sd_deg = -1.0 is invalid: expected a number in \[0, 30\) degrees"),
+    ({"min_coverage": 0.0}, r"min_coverage = 0.0 is invalid: expected a number in \(0, 1\]"),
+])
+def test_bad_frame_settings_are_one_line(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        CameraErrorLegs(**kwargs)

@@ -260,6 +260,8 @@ def _with_constants(observations, sensor) -> list:
         white = sensor.noise_a * (1.0 - math.exp(-sensor.noise_b * o.altitude))
         if o.factor > 1:
             white *= float(o.factor) ** sensor.binning_noise_exponent
+        # the belief reads only var - persistent (the white part): persistent is s_f sum(w^2) here, not the
+        # sensor's s_f w^T C w, which needs the grid positions of the cells (it cancels either way)
         persistent = sensor.persistent(o.factor) * np.einsum("ij,ij->i", o.weights, o.weights)
         out.append(dataclasses.replace(o, var=white + persistent, persistent=persistent))
     return out

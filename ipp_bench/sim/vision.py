@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ipp_bench.sensor import rays_on_ground
+
 
 @dataclass(frozen=True)
 class WeedSegmenter:
@@ -137,13 +139,7 @@ class GroundProjector:
 
     def corners_on_ground(self, cam_pos, cam_mat) -> np.ndarray | None:
         """(4, 2) ground points (x, y) [m] of the corner pixels, None when a corner misses the ground."""
-        R = np.asarray(cam_mat, dtype=np.float64).reshape(3, 3)
-        d = self._rays @ R.T
-        pz = float(cam_pos[2])
-        if pz <= 0.0 or np.any(d[:, 2] >= -1e-6):
-            return None
-        t = -pz / d[:, 2]
-        return np.stack([cam_pos[0] + t * d[:, 0], cam_pos[1] + t * d[:, 1]], axis=1)
+        return rays_on_ground(self._rays, cam_pos, cam_mat)
 
     def to_image(self, points, cam_pos, cam_mat) -> np.ndarray:
         """(K, 2) OpenCV pixel coordinates (x right, y down) of world points (K, 3) [m]; NaN behind the camera."""

@@ -153,6 +153,9 @@ class TrainArgs:
     init: str = opt("", "start from the weights of this exported checkpoint (.pt, e.g. an earlier run's "
                         "warmstart/bc.pt): the warm start fine-tunes them, or PPO starts from them", NET)
     warm_start: str = opt("none", "roadmap planner to imitate before PPO, e.g. greedy; 'none' to skip", WARM)
+    warm_start_for: list[str] = opt([], "another expert on one training task's environments, e.g. "
+                                        "ipp_bench/Hotspots30Train-v2=attention:checkpoint=PATH (repeatable; the "
+                                        "other tasks use --warm-start)", WARM, metavar="TASK=PLANNER")
     bc_episodes: int = opt(100, "expert episodes of round 0", WARM)
     bc_rounds: int = opt(2, "DAgger rounds after round 0", WARM)
     bc_round_episodes: int = opt(50, "student episodes per DAgger round", WARM)
@@ -188,6 +191,11 @@ class TrainArgs:
     def tasks(self) -> list[str]:
         """The training tasks: ``task`` and ``mix``, in environment order."""
         return [self.task, *self.mix]
+
+    def experts(self) -> list[str]:
+        """The warm start's expert of every training task (``--warm-start``, or ``--warm-start-for``'s)."""
+        given = dict(item.split("=", 1) for item in self.warm_start_for)
+        return [given.get(task, self.warm_start) for task in self.tasks]
 
 
 # Options that may change when resuming a run; all others must match the saved config.
@@ -329,6 +337,14 @@ def _check(cfg: TrainArgs) -> None:
                              f"{cfg.net_config()} (match --embed-dim, --n-heads, --ff-dim, --gain-feature)")
     if cfg.warm_start != "none":
         check_expert(cfg.warm_start)
+    for item in cfg.warm_start_for:
+        task, sep, expert = item.partition("=")
+        if not sep or task not in cfg.tasks:
+            raise ValueError(f"--warm-start-for {item!r} is invalid: expected TASK=PLANNER with TASK one of the "
+                             f"training tasks {cfg.tasks}")
+        if cfg.warm_start == "none":
+            raise ValueError(f"--warm-start-for {item!r} needs --warm-start (the expert of the other tasks)")
+        check_expert(expert)
     import gymnasium as gym
 
     import ipp_bench.envs  # noqa: F401 - registers the tasks
@@ -592,6 +608,7 @@ def versions() -> dict[str, str]:
 
 def _meta(cfg: TrainArgs, state: dict, steps: int, val: dict) -> dict:
     return {"task": cfg.task, "mix": list(cfg.mix), "ppo_steps": steps, "warm_start": cfg.warm_start,
+            "warm_start_for": list(cfg.warm_start_for),
             "command": command_line(cfg), "train_config": asdict(cfg) | {"out": ""},
             "seeds": {"seed": cfg.seed, "warm_start_episode_seeds": _warm_start_seeds(cfg),
                       "ppo_episode_seeds": "drawn by the environments' generators, seeded by --seed (SB3 set_random_seed)",

@@ -304,7 +304,8 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
     progress = json.loads(progress_file.read_text()) if progress_file.is_file() else {}
     n_tasks = len(getattr(cfg, "tasks", [None]))
     envs = [make_env(i) for i in range(n_tasks)] if n_tasks > 1 else [make_env()]
-    expert = make_expert(cfg.warm_start)
+    names = cfg.experts() if hasattr(cfg, "experts") else [cfg.warm_start]
+    experts = [make_expert(name) for name in names[:len(envs)]]
     torch.manual_seed(cfg.seed)
     net = AttentionNet(net_config).to(device)
     if init is not None:
@@ -345,7 +346,7 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
         parts = []
         for i, env in enumerate(envs):  # one task: all episodes; several: split in turn, seeds consecutive
             n_i = n_ep // len(envs) + (i < n_ep % len(envs))
-            parts.append(collect_episodes(env, expert, None if rnd == 0 else net, n_i, beta, data, cfg.gamma, rng,
+            parts.append(collect_episodes(env, experts[i], None if rnd == 0 else net, n_i, beta, data, cfg.gamma, rng,
                                           seed, device, temperature=cfg.bc_temperature, net_config=net_config))
             seed += n_i
         stats = parts[0] if len(parts) == 1 else {
@@ -375,7 +376,8 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
     wall = time.time() - t0
     say(f"warm start done in {wall:.0f} s; validation: " + ", ".join(
         f"{k.split('/', 1)[-1]} {v:.2f}" for k, v in val.items()))
-    save_checkpoint(net, out / "bc.pt", meta={"task": cfg.task, "phase": "warm start", "expert": cfg.warm_start,
+    save_checkpoint(net, out / "bc.pt", meta={"task": cfg.task, "phase": "warm start",
+                                               "expert": ", ".join(dict.fromkeys(names)),
                                                "samples": len(data), "wall_s": wall, **val})
     for r in range(cfg.bc_rounds + 1):  # the samples are no longer needed once bc.pt exists
         (out / f"data_{r}.npz").unlink(missing_ok=True)

@@ -296,3 +296,18 @@ def test_resume_with_damaged_files_names_the_file(tmp_path, capsys):
     assert main(["--out", str(run), "--resume"]) == 2
     err = capsys.readouterr().err
     assert "latest.zip is corrupt" in err and "step_1024_steps.zip" in err and err.count("\n") == 1, err
+
+
+def test_warm_start_for_names_the_expert_of_one_task_and_is_checked_before_the_run_folder(tmp_path, capsys):
+    cfg = TrainArgs(task="ipp_bench/Grid15Train-v1", mix=["ipp_bench/Hotspots15Train-v2"], warm_start="greedy",
+                    warm_start_for=["ipp_bench/Hotspots15Train-v2=mcts:simulations=4"])
+    assert cfg.experts() == ["greedy", "mcts:simulations=4"]
+    assert TrainArgs(warm_start="greedy").experts() == ["greedy"]
+    cases = [
+        (["--warm-start-for", "greedy"], "expected TASK=PLANNER"),
+        (["--warm-start-for", "ipp_bench/Grid30Train-v1=greedy"], "one of the training tasks"),
+        (["--warm-start-for", "ipp_bench/Grid15-v0=coverage"], "a roadmap planner"),
+        (["--warm-start-for", "ipp_bench/Grid15-v0=nope"], "--warm-start 'nope' is invalid"),
+        (["--warm-start", "none", "--warm-start-for", "ipp_bench/Grid15-v0=greedy"], "needs --warm-start"),
+    ]
+    _refused_in_one_line(cases, tmp_path, capsys)

@@ -181,11 +181,19 @@ class BCDataset:
             self.ret.append(float(rt))
 
     def batches(self, batch_size: int, rng: np.random.Generator, device: torch.device):
+        """Minibatches in a random order; with states of several roadmaps (map sizes) each batch holds
+        one roadmap's (the order within a roadmap is the shuffled one, batches taken in turn by their
+        first sample's place), so that one fit sees every size; with one roadmap the plain shuffle."""
         order = rng.permutation(len(self))
         k = (self.small[0].size - 2) // 2
         pes = [torch.as_tensor(p) for p in self.pes]
-        for s in range(0, len(order), batch_size):
-            idx = order[s : s + batch_size]
+        n_nodes = np.array([self.nf[i].shape[0] for i in order])
+        chunks = []
+        for n in dict.fromkeys(n_nodes.tolist()):
+            place = np.flatnonzero(n_nodes == n)
+            chunks += [place[s : s + batch_size] for s in range(0, place.size, batch_size)]
+        for chunk in sorted(chunks, key=lambda c: c[0]):
+            idx = order[chunk]
             small = torch.as_tensor(np.stack([self.small[i] for i in idx]))
             obs = {
                 "node_features": torch.as_tensor(np.stack([self.nf[i] for i in idx])),
@@ -262,19 +270,30 @@ def fit_bc(net: AttentionNet, data: BCDataset, epochs: int, lr: float, batch_siz
 # ------------------------------------------------------------------------------------------------
 def _save_chunk(data: BCDataset, start: int, path: Path) -> None:
     """Samples ``start:`` of ``data`` (one round) to ``path`` (npz, written then renamed)."""
-    pes = np.stack(data.pes) if data.pes else np.zeros((0, 0, 0), np.float32)
+    # states of several roadmaps have different node counts: rows concatenated, with each one's count
+    nf, pes = data.nf[start:], data.pes
     tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez(tmp, nf=np.stack(data.nf[start:]), small=np.stack(data.small[start:]),
-             pe_id=np.asarray(data.pe_id[start:]), action=np.asarray(data.action[start:]),
-             target=np.stack(data.target[start:]), ret=np.asarray(data.ret[start:], dtype=np.float64), pes=pes)
+    np.savez(tmp, nf=np.concatenate(nf), nf_nodes=np.array([a.shape[0] for a in nf]),
+             small=np.stack(data.small[start:]), pe_id=np.asarray(data.pe_id[start:]),
+             action=np.asarray(data.action[start:]), target=np.stack(data.target[start:]),
+             ret=np.asarray(data.ret[start:], dtype=np.float64),
+             pes=np.concatenate(pes) if pes else np.zeros((0, 0), np.float32),
+             pes_nodes=np.array([p.shape[0] for p in pes], dtype=np.int64))
     tmp.replace(path)
+
+
+def _split_rows(rows: np.ndarray, counts: np.ndarray) -> list[np.ndarray]:
+    return list(np.split(rows, np.cumsum(counts)[:-1])) if len(counts) else []
 
 
 def _load_chunk(data: BCDataset, path: Path) -> None:
     z = np.load(path)
-    pes = list(z["pes"])
+    if "nf_nodes" in z:
+        pes, nf = _split_rows(z["pes"], z["pes_nodes"]), _split_rows(z["nf"], z["nf_nodes"])
+    else:  # a run folder of the one-roadmap layout: (samples, N, F) and (roadmaps, N, P)
+        pes, nf = list(z["pes"]), list(z["nf"])
     remap = [data._pe_index(p) for p in pes]
-    data.nf += list(z["nf"])
+    data.nf += nf
     data.small += list(z["small"])
     data.pe_id += [remap[i] for i in z["pe_id"]]
     data.action += [int(a) for a in z["action"]]

@@ -1,0 +1,58 @@
+"""One DAgger warm start over the 15, 20 and 30 x 30 training tasks with two teachers (issue 17).
+
+Greedy labels the v1 tasks' states (``Grid15Train-v1``, ``Grid20Train-v1``, ``Grid30Train-v1``);
+the starting network's own argmax labels the hotspot tasks' (``Hotspots15Train-v2``,
+``Hotspots30Train-v2``), so that the fit keeps what PPO learned there while it moves the v1
+behaviour to greedy's. One fit sees every size (the DAgger batches hold one roadmap each), which
+``ipp-bench train`` cannot do because its PPO phase holds one roadmap. Writes ``OUT/warmstart/bc.pt``
+(resumable like ``ipp-bench train``'s warm start) and prints the validation figures (16 argmax
+episodes per task on the validation seeds).
+
+    python benchmarks/joint_warm_start.py --out runs/joint   # about 8 minutes on one core
+
+``benchmarks/candidates/attention_joint_ws.pt`` is its output from ``attention_v3.pt``
+(``benchmarks/RESULTS.md``, "Attention at the frontier, third session").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+from ipp_bench.policies.train import TrainArgs, _validation, load_init, make_train_env, set_threads
+from ipp_bench.policies.warmstart import warm_start
+
+TASKS = ["ipp_bench/Grid30Train-v1", "ipp_bench/Hotspots30Train-v2", "ipp_bench/Grid15Train-v1",
+         "ipp_bench/Hotspots15Train-v2", "ipp_bench/Grid20Train-v1"]
+VAL = ["ipp_bench/Grid15Train-v1", "ipp_bench/Hotspots15Train-v2", "ipp_bench/Grid30Train-v1",
+       "ipp_bench/Hotspots30Train-v2"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="run folder (warmstart/ goes in it)")
+    ap.add_argument("--init", default="ipp_bench/policies/checkpoints/attention_v3.pt",
+                    help="the starting weights, also the hotspot tasks' teacher")
+    args = ap.parse_args(argv)
+    if not Path(args.init).is_file():
+        ap.error(f"--init {args.init}: not found")
+    cfg = TrainArgs(task=TASKS[0], mix=TASKS[1:], invariant=True, embed_dim=64, ff_dim=256, reward="metric",
+                    init=args.init, warm_start="greedy",
+                    warm_start_for=[f"{t}=attention:checkpoint={args.init}" for t in TASKS if "Hotspots" in t],
+                    bc_episodes=100, bc_rounds=1, bc_round_episodes=50, bc_epochs=4, bc_lr=1e-4,
+                    bc_temperature=0.05, gamma=0.99, batch_size=128, eval_episodes=16, val_task=VAL)
+    set_threads(1)
+    run = Path(args.out)
+    run.mkdir(parents=True, exist_ok=True)
+    _, val = warm_start(cfg, run, torch.device("cpu"), lambda m: print(m, flush=True),
+                        make_env=lambda i=0: make_train_env(cfg, i), validate=lambda n: _validation(n, cfg),
+                        net_config=cfg.net_config(), init=load_init(cfg))
+    print(json.dumps(val, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -194,7 +194,7 @@ class TrainArgs:
 
     def experts(self) -> list[str]:
         """The warm start's expert of every training task (``--warm-start``, or ``--warm-start-for``'s)."""
-        given = dict(item.split("=", 1) for item in self.warm_start_for)
+        given = dict(item.partition("=")[::2] for item in self.warm_start_for)
         return [given.get(task, self.warm_start) for task in self.tasks]
 
 

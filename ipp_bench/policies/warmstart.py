@@ -324,7 +324,7 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
     n_tasks = len(getattr(cfg, "tasks", [None]))
     envs = [make_env(i) for i in range(n_tasks)] if n_tasks > 1 else [make_env()]
     names = cfg.experts() if hasattr(cfg, "experts") else [cfg.warm_start]
-    experts = [make_expert(name) for name in names[:len(envs)]]
+    experts = [make_expert(name) for name in names]  # one per task, in environment order
     torch.manual_seed(cfg.seed)
     net = AttentionNet(net_config).to(device)
     if init is not None:

@@ -36,13 +36,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", required=True, help="run folder (warmstart/ goes in it)")
     ap.add_argument("--init", default="ipp_bench/policies/checkpoints/attention_v3.pt",
                     help="the starting weights, also the hotspot tasks' teacher")
+    ap.add_argument("--tasks", nargs="+", default=TASKS, metavar="TASK",
+                    help="training tasks, the first the main one; a task named twice gets twice the episodes "
+                         "(greedy labels the v1 tasks, the --init network the hotspot ones)")
+    ap.add_argument("--episodes", type=int, default=100, help="round 0's episodes, split over --tasks in turn")
+    ap.add_argument("--round-episodes", type=int, default=50, help="round 1's (DAgger) episodes")
     args = ap.parse_args(argv)
+    for name, value in (("--episodes", args.episodes), ("--round-episodes", args.round_episodes)):
+        if value < len(args.tasks):
+            ap.error(f"{name} {value}: at least one episode per task ({len(args.tasks)} tasks)")
     if not Path(args.init).is_file():
         ap.error(f"--init {args.init}: not found")
-    cfg = TrainArgs(task=TASKS[0], mix=TASKS[1:], invariant=True, embed_dim=64, ff_dim=256, reward="metric",
+    cfg = TrainArgs(task=args.tasks[0], mix=args.tasks[1:], invariant=True, embed_dim=64, ff_dim=256, reward="metric",
                     init=args.init, warm_start="greedy",
-                    warm_start_for=[f"{t}=attention:checkpoint={args.init}" for t in TASKS if "Hotspots" in t],
-                    bc_episodes=100, bc_rounds=1, bc_round_episodes=50, bc_epochs=4, bc_lr=1e-4,
+                    warm_start_for=[f"{t}=attention:checkpoint={args.init}" for t in dict.fromkeys(args.tasks)
+                                    if "Hotspots" in t],
+                    bc_episodes=args.episodes, bc_rounds=1, bc_round_episodes=args.round_episodes, bc_epochs=4, bc_lr=1e-4,
                     bc_temperature=0.05, gamma=0.99, batch_size=128, eval_episodes=16, val_task=VAL)
     set_threads(1)
     run = Path(args.out)

@@ -1,7 +1,7 @@
 """One DAgger warm start over the 15, 20 and 30 x 30 training tasks with two teachers (issue 17).
 
 Greedy labels the v1 tasks' states (``Grid15Train-v1``, ``Grid20Train-v1``, ``Grid30Train-v1``);
-the starting network's own argmax labels the hotspot tasks' (``Hotspots15Train-v2``,
+the starting network's own argmax (or ``--teacher``'s) labels the hotspot tasks' (``Hotspots15Train-v2``,
 ``Hotspots30Train-v2``), so that the fit keeps what PPO learned there while it moves the v1
 behaviour to greedy's. One fit sees every size (the DAgger batches hold one roadmap each), which
 ``ipp-bench train`` cannot do because its PPO phase holds one roadmap. Writes ``OUT/warmstart/bc.pt``
@@ -10,8 +10,9 @@ episodes per task on the validation seeds).
 
     python benchmarks/joint_warm_start.py --out runs/joint   # about 8 minutes on one core
 
-``benchmarks/candidates/attention_joint_ws.pt`` is its output from ``attention_v3.pt``
-(``benchmarks/RESULTS.md``, "Attention at the frontier, third session").
+``ipp_bench/policies/checkpoints/attention_v4.pt`` (the default) is its output with the defaults,
+from ``attention_v3.pt`` (``benchmarks/RESULTS.md``, "Attention at the frontier, third session"
+and "fourth session", with the variants tried).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from pathlib import Path
 
 import torch
 
+from ipp_bench.envs.registry import task_spec
 from ipp_bench.policies.train import TrainArgs, _validation, load_init, make_train_env, set_threads
 from ipp_bench.policies.warmstart import warm_start
 
@@ -35,30 +37,55 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="run folder (warmstart/ goes in it)")
     ap.add_argument("--init", default="ipp_bench/policies/checkpoints/attention_v3.pt",
-                    help="the starting weights, also the hotspot tasks' teacher")
+                    help="the starting weights ('none': a fresh network), also the hotspot tasks' teacher "
+                         "unless --teacher")
+    ap.add_argument("--teacher", default=None,
+                    help="the hotspot tasks' teacher: a checkpoint, or 'greedy' (greedy labels every task); "
+                         "default: --init")
+    ap.add_argument("--rounds", type=int, default=1, help="DAgger rounds after round 0")
     ap.add_argument("--tasks", nargs="+", default=TASKS, metavar="TASK",
                     help="training tasks, the first the main one; a task named twice gets twice the episodes "
-                         "(greedy labels the v1 tasks, the --init network the hotspot ones)")
+                         "(greedy labels the v1 tasks, --teacher the hotspot ones)")
     ap.add_argument("--episodes", type=int, default=100, help="round 0's episodes, split over --tasks in turn")
-    ap.add_argument("--round-episodes", type=int, default=50, help="round 1's (DAgger) episodes")
+    ap.add_argument("--round-episodes", type=int, default=50, help="each DAgger round's episodes")
+    ap.add_argument("--epochs", type=int, default=4, help="fitting epochs per round")
+    ap.add_argument("--lr", type=float, default=1e-4, help="the fit's learning rate")
     args = ap.parse_args(argv)
     for name, value in (("--episodes", args.episodes), ("--round-episodes", args.round_episodes)):
         if value < len(args.tasks):
             ap.error(f"{name} {value}: at least one episode per task ({len(args.tasks)} tasks)")
-    if not Path(args.init).is_file():
-        ap.error(f"--init {args.init}: not found")
+    teacher = args.teacher or args.init
+    if teacher == "none":
+        ap.error("--teacher: a fresh network (--init none) cannot teach; give --teacher greedy or a checkpoint")
+    for name, path in (("--init", args.init), ("--teacher", teacher)):
+        if path not in ("none", "greedy") and not Path(path).is_file():
+            ap.error(f"{name} {path}: not found")
+    if args.init == "greedy":
+        ap.error("--init greedy: --init takes a checkpoint or 'none'")
+    if args.rounds < 0:
+        ap.error(f"--rounds {args.rounds}: must be 0 or more")
+    if args.epochs < 1:
+        ap.error(f"--epochs {args.epochs}: must be 1 or more")
+    if not args.lr > 0:
+        ap.error(f"--lr {args.lr}: must be above 0")
+    for task in args.tasks:
+        try:
+            task_spec(task)
+        except ValueError as err:
+            ap.error(f"--tasks: {err}")
     cfg = TrainArgs(task=args.tasks[0], mix=args.tasks[1:], invariant=True, embed_dim=64, ff_dim=256, reward="metric",
-                    init=args.init, warm_start="greedy",
-                    warm_start_for=[f"{t}=attention:checkpoint={args.init}" for t in dict.fromkeys(args.tasks)
-                                    if "Hotspots" in t],
-                    bc_episodes=args.episodes, bc_rounds=1, bc_round_episodes=args.round_episodes, bc_epochs=4, bc_lr=1e-4,
+                    init="" if args.init == "none" else args.init, warm_start="greedy",
+                    warm_start_for=[] if teacher == "greedy" else
+                    [f"{t}=attention:checkpoint={teacher}" for t in dict.fromkeys(args.tasks) if "Hotspots" in t],
+                    bc_episodes=args.episodes, bc_rounds=args.rounds, bc_round_episodes=args.round_episodes,
+                    bc_epochs=args.epochs, bc_lr=args.lr,
                     bc_temperature=0.05, gamma=0.99, batch_size=128, eval_episodes=16, val_task=VAL)
     set_threads(1)
     run = Path(args.out)
     run.mkdir(parents=True, exist_ok=True)
     _, val = warm_start(cfg, run, torch.device("cpu"), lambda m: print(m, flush=True),
                         make_env=lambda i=0: make_train_env(cfg, i), validate=lambda n: _validation(n, cfg),
-                        net_config=cfg.net_config(), init=load_init(cfg))
+                        net_config=cfg.net_config(), init=load_init(cfg) if cfg.init else None)
     print(json.dumps(val, indent=1))
     return 0
 

@@ -10,9 +10,10 @@ episodes per task on the validation seeds).
 
     python benchmarks/joint_warm_start.py --out runs/joint   # about 8 minutes on one core
 
-``ipp_bench/policies/checkpoints/attention_v4.pt`` (the default) is its output with the defaults,
-from ``attention_v3.pt`` (``benchmarks/RESULTS.md``, "Attention at the frontier, third session"
-and "fourth session", with the variants tried).
+``ipp_bench/policies/checkpoints/attention_v4.pt`` is its output with the defaults, from
+``attention_v3.pt`` (averaged with it into the default, ``attention_v5.pt``;
+``benchmarks/RESULTS.md``, "Attention at the frontier, third session" and "fourth session", with
+the variants tried).
 """
 
 from __future__ import annotations

@@ -402,6 +402,13 @@ def belief_model(field: GPBelief, sensor) -> "WhiteNoiseBelief | PersistentError
     return cls(field, sensor)
 
 
+def error_states(mission) -> "PersistentErrorBelief | None":
+    """The belief model of ``mission`` (a :class:`~ipp_bench.mission.Mission`) if it carries the camera's
+    repeated error as states (:class:`PersistentErrorBelief`: the deployment and its twin), else None
+    (white read-out noise)."""
+    model = getattr(mission, "belief_model", None)
+    return model if isinstance(model, PersistentErrorBelief) else None
 
-__all__ = ["GPBelief", "PersistentErrorBelief", "WhiteNoiseBelief", "belief_model", "cell_centres", "matern32",
+
+__all__ = ["GPBelief", "PersistentErrorBelief", "WhiteNoiseBelief", "belief_model", "cell_centres", "error_states", "matern32",
            "normalised_innovation", "prior_covariance", "value_scale"]

@@ -17,7 +17,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from .. import metrics as M
-from ..belief import GPBelief
+from ..belief import GPBelief, error_states
 from ..belief_window import WindowBelief
 from ..config import IPPConfig
 from ..mission import fits_budget, leg_length, leg_samples
@@ -105,6 +105,22 @@ class RobotView:
 
     def belief_roi(self) -> np.ndarray:
         return self._env.mission.belief_roi()
+
+    def static_key(self) -> tuple:
+        """What the roadmap's static predictions (read-outs along legs, leg flight times) depend on beyond
+        the roadmap, as a hashable value: the camera's constants, the grid, the mission's constants and the
+        platform's clock. Caches of such predictions live per roadmap and must key on it too: tasks share
+        a roadmap object where their maps agree (``Grid15Eval-v1`` and the deployment's twin), not their
+        camera or clock, and an object's ``id`` can be reused once it is freed."""
+        platform = self._env.mission.platform
+        clock = (type(platform).__module__, type(platform).__qualname__, getattr(platform, "ramp_s", None))
+        return self.sensor.cfg, self.config.grid, self.config.mission, clock
+
+    def error_states(self):
+        """The camera-error states of the belief (:class:`~ipp_bench.belief.PersistentErrorBelief`:
+        the deployment and its twin, whose camera repeats its error at a cell), or None where the
+        task's read-out noise is white (read it; never update it)."""
+        return error_states(self._env.mission)
 
     def require_dense_belief(self, planner: str, reason: str) -> None:
         """Refuse, in one line naming the task, the planner and ``reason``, a task whose belief is not the

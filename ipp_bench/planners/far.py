@@ -23,7 +23,7 @@ def duration_graph(view: Any):
     clock (what the quickest roadmap path to a target costs); built once per roadmap and mission."""
     from scipy.sparse import csr_matrix
 
-    key = (id(view.sensor), view.config.mission)
+    key = view.static_key()
     cached = _GRAPHS.get(view.roadmap)
     if cached is None or cached[0] != key:
         rm = view.roadmap
@@ -34,9 +34,11 @@ def duration_graph(view: Any):
     return cached[1]
 
 
-def best_far_target(view: Any, obs: dict[str, np.ndarray], targets: np.ndarray, rates: Any) -> tuple[float, int]:
+def best_far_target(view: Any, obs: dict[str, np.ndarray], targets: np.ndarray, rates: Any,
+                    with_path: bool = False) -> tuple:
     """(rate, neighbour index) of the best far target and the first leg of the quickest roadmap
-    path to it, or (-inf, -1) when no target is reachable within the budget. ``rates(t, ok)`` gives
+    path to it, or (-inf, -1) when no target is reachable within the budget (``with_path``: and the
+    path's nodes after the current one, ending at the target, as a third item; [] for none). ``rates(t, ok)`` gives
     each target's gain per second of flight from its flight times ``t`` (``ok``: reachable; -inf
     where not scored); it is called only when some target is reachable."""
     from scipy.sparse.csgraph import dijkstra
@@ -45,16 +47,18 @@ def best_far_target(view: Any, obs: dict[str, np.ndarray], targets: np.ndarray, 
     t, pred = dijkstra(duration_graph(view), indices=cur, return_predecessors=True)
     t = t[targets]
     ok = (t > 0) & np.isfinite(t) & view.fits_budget(t, view.remaining_s)
+    none = (-np.inf, -1, []) if with_path else (-np.inf, -1)
     if not ok.any():
-        return -np.inf, -1
+        return none
     far = rates(t, ok)
     j = int(np.argmax(far))
     if not np.isfinite(far[j]):
-        return -np.inf, -1
-    hop = int(targets[j])
-    while pred[hop] != cur:
-        hop = int(pred[hop])
-    return float(far[j]), int(np.flatnonzero(view.roadmap.neighbours[cur] == hop)[0])
+        return none
+    path = [int(targets[j])]
+    while pred[path[-1]] != cur:
+        path.append(int(pred[path[-1]]))
+    out = float(far[j]), int(np.flatnonzero(view.roadmap.neighbours[cur] == path[-1])[0])
+    return (*out, path[::-1]) if with_path else out
 
 
 def far_move(view: Any, obs: dict[str, np.ndarray], scores: np.ndarray, targets: np.ndarray,
@@ -90,7 +94,7 @@ class FarTargets:
 
     @classmethod
     def of(cls, view: Any) -> FarTargets:
-        key = (id(view.sensor), view.config.mission)
+        key = view.static_key()
         cached = _FAR.get(view.roadmap)
         if cached is None or cached[0] != key:
             cached = _FAR[view.roadmap] = (key, cls(view))

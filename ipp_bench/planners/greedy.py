@@ -35,7 +35,7 @@ def leg_batch(view, node: int) -> LegBatch | list:
     """
     rm = view.roadmap
     window = view.config.gp.belief == "window"
-    key = (id(view.sensor), view.config.mission.measurement_spacing, window)
+    key = (view.sensor.cfg, view.config.grid, view.config.mission.measurement_spacing, window)
     per_map = _LEGS.get(rm)
     if per_map is None or per_map[0] != key:
         per_map = _LEGS[rm] = (key, OrderedDict() if window else {})

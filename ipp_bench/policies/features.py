@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
+from ..belief import error_states
 from .network import SKIP_TEACHERS  # the teachers of NetConfig.skip_teacher
 
 BASE_NODE_DIM = 5  # the GraphIPPEnv node features
@@ -46,7 +47,7 @@ class LookGain:
     """Per-node look-gain feature of one roadmap and camera (built once, then cheap per call)."""
 
     def __init__(self, positions: np.ndarray, sensor: Any, n_cells: int) -> None:
-        rows, cols, w, noise, node_of = [], [], [], [], []
+        rows, cols, w, noise, white, factor, node_of = [], [], [], [], [], [], []
         j = 0
         for i, p in enumerate(positions):
             obs = sensor.observe(p)
@@ -59,36 +60,95 @@ class LookGain:
                 cols.append(cells)
                 w.append(obs.weights[r][nz])
                 noise.append(obs.var[r])
+                white.append(obs.var[r] - (0.0 if obs.persistent is None else obs.persistent[r]))
+                factor.append(obs.factor)
                 node_of.append(i)
                 j += 1
         rows_a, cols_a = np.concatenate(rows), np.concatenate(cols)
         self.W = sparse.csr_matrix((np.concatenate(w), (rows_a, cols_a)), shape=(j, n_cells))
         self.ind = sparse.csr_matrix((np.ones(rows_a.size), (rows_a, cols_a)), shape=(j, n_cells))
-        self.noise = np.asarray(noise, dtype=np.float64)
+        self.noise = np.asarray(noise, dtype=np.float64)  # one look's whole variance (white + persistent)
+        self.white = np.asarray(white, dtype=np.float64)  # its look-to-look part
+        self.factor = np.asarray(factor, dtype=np.int64)  # each read-out row's resolution factor
         self.node = sparse.csr_matrix((np.ones(j), (np.asarray(node_of), np.arange(j))), shape=(len(positions), j))
 
     @classmethod
     def of(cls, source: Any) -> LookGain:
-        """The feature of ``source``'s roadmap and camera (a RobotView or an env), built once per roadmap."""
+        """The feature of ``source``'s roadmap and camera (a RobotView or an env), built once per roadmap
+        and camera: tasks share a roadmap where their maps agree (``Grid15Eval-v1`` and the deployment's
+        twin do), not always their camera's constants, so one process that flies both keeps one each."""
         roadmap = source.roadmap
-        cached = _CACHE.get(roadmap)
+        per_camera = _CACHE.setdefault(roadmap, {})
+        key = (source.sensor.cfg, source.config.grid)
+        cached = per_camera.get(key)
         if cached is None:
-            cached = _CACHE[roadmap] = cls(roadmap.positions, source.sensor, source.config.grid.n_cells)
+            cached = per_camera[key] = cls(roadmap.positions, source.sensor, source.config.grid.n_cells)
         return cached
 
-    def __call__(self, variance: np.ndarray, roi: np.ndarray) -> np.ndarray:
-        """(N,) float32: 10 x predicted relative ROI trace reduction of one look from each node."""
+    def __call__(self, variance: np.ndarray, roi: np.ndarray, errors: Any = None) -> np.ndarray:
+        """(N,) float32: 10 x predicted relative ROI trace reduction of one look from each node.
+
+        ``errors``: the mission's :class:`~ipp_bench.belief.PersistentErrorBelief` where the task models
+        the camera's repeated error (:func:`error_states`), else None (white read-out noise, the formula
+        of the module docstring). With it, a look at cell c measures y_c = x_c + d_c u_c (d_c u_c the
+        persistent error, ``errors.sd``) plus white noise, and the formula reads the augmented state's
+        marginals: a read-out j's block is ``S_j = sum_c w_c q_c`` with q_c^2 = Var(y_c), and each ROI
+        cell loses ``S_j^2 / (S_j^2 + r_j) * k_c^2 / q_c^2`` with k_c = Cov(x_c, y_c) and r_j the white
+        variance. A cell looked at again and again has y_c pinned, so k_c -> 0 and the look gains
+        nothing, as the belief's update says; the white formula would keep promising a gain there
+        (it treats the repeated error as fresh noise). Exact for single-cell read-outs of an
+        uncorrelated belief; the same formula as the white one where d = 0 and the cross term is 0.
+        """
         var = np.maximum(np.asarray(variance, dtype=np.float64), 0.0)
         roi_var = np.where(roi, var, 0.0)
         total = roi_var.sum()
         if total <= 0:
             return np.zeros(self.node.shape[0], dtype=np.float32)
-        s2 = np.square(self.W @ np.sqrt(var))
-        red = s2 / (s2 + self.noise) * (self.ind @ roi_var)
+        if errors is None:
+            s2 = np.square(self.W @ np.sqrt(var))
+            red = s2 / (s2 + self.noise) * (self.ind @ roi_var)
+        else:
+            red = self._error_reductions(var, roi, errors)
         return (10.0 * (self.node @ red) / total).astype(np.float32)
+
+    def _error_reductions(self, var: np.ndarray, roi: np.ndarray, errors: Any) -> np.ndarray:
+        """Per read-out row: the predicted ROI trace reduction under the camera-error states."""
+        from ..belief import value_scale
+
+        n = var.size
+        cells = np.arange(n)
+        cov, mean = errors.state.cov, errors.field.mean
+        s_block = np.zeros(self.factor.size)
+        gain = np.zeros(self.factor.size)
+        for f in np.unique(self.factor):
+            rows = self.factor == f
+            if int(f) in errors.offset:  # y = x + d u: its variance and its covariance with x
+                off = errors.offset[int(f)]
+                unseen_sd = np.sqrt(errors.variances[int(f)] * value_scale(mean, errors.floor))
+                d = np.where(errors.seen, errors.sd[int(f)], unseen_sd)
+                k = var + d * cov[cells, cells + off]
+                q2 = np.maximum(k + d * cov[cells, cells + off] + d * d * cov[cells + off, cells + off], 0.0)
+            else:
+                k, q2 = var, var
+            ratio = np.divide(k * k, q2, out=np.zeros(n), where=q2 > 0)
+            s_block[rows] = (self.W @ np.sqrt(q2))[rows]
+            gain[rows] = (self.ind @ np.where(roi, ratio, 0.0))[rows]
+        s2 = np.square(s_block)
+        r = self.white * value_scale(self.W @ mean, errors.floor)
+        return np.divide(s2, s2 + r, out=np.zeros_like(s2), where=s2 + r > 0) * gain
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _belief_of(source: Any) -> tuple[Any, np.ndarray, np.ndarray, Any]:
+    """(source, variance, ROI, camera-error states or None) as the robot sees them; ``source`` a
+    RobotView, or an env (unwrapped here)."""
+    if hasattr(source, "belief_roi"):  # RobotView
+        return source, source.belief.variance, source.belief_roi(), source.error_states()
+    source = source.unwrapped
+    mission = source.mission
+    return source, mission.belief.variance, mission.belief_roi(), error_states(mission)
 
 
 def add_gain_feature(obs: dict[str, np.ndarray], source: Any) -> dict[str, np.ndarray]:
@@ -98,12 +158,8 @@ def add_gain_feature(obs: dict[str, np.ndarray], source: Any) -> dict[str, np.nd
         obs: a GraphIPPEnv observation.
         source: the planner's :class:`~ipp_bench.planners.base.RobotView`, or the env itself.
     """
-    if hasattr(source, "belief_roi"):  # RobotView: belief and ROI as the robot sees them
-        variance, roi = source.belief.variance, source.belief_roi()
-    else:
-        source = source.unwrapped
-        variance, roi = source.mission.belief.variance, source.mission.belief_roi()
-    gain = LookGain.of(source)(variance, roi)
+    source, variance, roi, errors = _belief_of(source)
+    gain = LookGain.of(source)(variance, roi, errors)
     out = dict(obs)
     out["node_features"] = np.concatenate([obs["node_features"], gain[:, None]], axis=1)
     return out
@@ -128,11 +184,7 @@ def invariant_features(obs: dict[str, np.ndarray], source: Any) -> dict[str, np.
         obs: a GraphIPPEnv observation.
         source: the planner's :class:`~ipp_bench.planners.base.RobotView`, or the env itself.
     """
-    if hasattr(source, "belief_roi"):
-        variance, roi = source.belief.variance, source.belief_roi()
-    else:
-        source = source.unwrapped
-        variance, roi = source.mission.belief.variance, source.mission.belief_roi()
+    source, variance, roi, errors = _belief_of(source)
     cfg = source.config
     sigma0 = float(np.sqrt(cfg.gp.signal_variance + cfg.gp.nugget))
     pos = source.roadmap.positions
@@ -143,7 +195,7 @@ def invariant_features(obs: dict[str, np.ndarray], source: Any) -> dict[str, np.
     out[:, 2] = f[:, 2]
     out[:, 3] = (f[:, 3] - cfg.mission.mu_th) / sigma0
     out[:, 4] = f[:, 4] / sigma0
-    out[:, 5] = LookGain.of(source)(variance, roi) * (np.count_nonzero(roi) / 100.0)
+    out[:, 5] = LookGain.of(source)(variance, roi, errors) * (np.count_nonzero(roi) / 100.0)
     return dict(obs) | {"node_features": out}
 
 

@@ -31,6 +31,12 @@ from ..planners.base import GraphPlanner, RobotView, softmax
 DEFAULT_CONTEXT_NODES = 4096
 MIN_CONTEXT_NODES = 64  # [-] a context smaller than this is hardly more than the k neighbours
 CONTEXT_CACHE = 256  # [-] context node sets kept (least recently used dropped), one per current node
+#: the stall guard's defaults: a belief whose total variance fell by less than 0.3 % over 4 decisions has
+#: stalled (the network flies back and forth over cells its camera has already pinned, on the deployment
+#: and its twin, or over cells it has mapped, late in a hotspot mission); chosen on validation episodes
+#: among 0.1-3 % and 4 or 6 decisions (benchmarks/RESULTS.md, issue 17, fifth session)
+STALL_LEGS = 4
+STALL_DROP = 3e-3
 
 
 @dataclass(frozen=True)
@@ -45,8 +51,26 @@ class AttentionConfig:
     # 0 = every node. Roadmaps of at most this many nodes (every task up to 30 x 30: 1800) see all of
     # them, so the decisions there are those of full attention, byte for byte.
     context_nodes: int = DEFAULT_CONTEXT_NODES
+    # [-] the stall guard: when the belief's total variance fell by less than stall_drop (relative) over
+    # the last stall_legs decisions, the planner flies to the node whose one look gains most per second
+    # of flight (the network's own look-gain input, Dijkstra on the roadmap's flight times), then hands
+    # back to the network; 0 = off (the network alone)
+    stall_legs: int = STALL_LEGS
+    stall_drop: float = STALL_DROP  # [-] in (0, 1)
 
     def __post_init__(self) -> None:
+        try:
+            legs = int(self.stall_legs.strip()) if isinstance(self.stall_legs, str) else self.stall_legs
+            drop = float(self.stall_drop)
+        except (TypeError, ValueError):
+            legs, drop = -1, float("nan")
+        if isinstance(legs, bool) or not isinstance(legs, int) or legs < 0:
+            raise ValueError(f"attention.stall_legs = {self.stall_legs!r} is invalid: expected 0 (no stall guard) "
+                             "or an integer >= 1")
+        if not 0.0 < drop < 1.0:
+            raise ValueError(f"attention.stall_drop = {self.stall_drop!r} is invalid: expected a number in (0, 1)")
+        object.__setattr__(self, "stall_legs", legs)
+        object.__setattr__(self, "stall_drop", drop)
         raw = self.context_nodes
         try:  # an int, or its text from "attention:context_nodes=512"
             context = int(raw.strip()) if isinstance(raw, str) else (int(raw) if int(raw) == raw else -1)
@@ -149,6 +173,9 @@ class AttentionPlanner(GraphPlanner):
                                       "score, whose far targets' look gains read the full covariance")
         super().reset(view, seed)
         self._contexts: OrderedDict[int, np.ndarray] = OrderedDict()  # current node -> its context nodes
+        self._totals: list[float] = []  # the belief's total variance at the last stall_legs + 1 decisions
+        self._escape: list[int] = []  # the stall guard's path still to fly, ending at its target ([]: the network)
+        self.guard_decisions = 0  # decisions of this episode that the stall guard made
 
     def context(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """``obs`` on the nodes the network attends to: the ``context_nodes`` roadmap nodes nearest the
@@ -217,7 +244,53 @@ class AttentionPlanner(GraphPlanner):
         return out
 
     def act(self, obs: dict[str, np.ndarray]) -> int:
+        guard = self._stall_guard(obs)
+        if guard >= 0:
+            self.guard_decisions += 1
+            return guard
         logits = self._logits(obs)
         if not self.settings.sample:
             return int(np.argmax(logits))
         return int(self.rng.choice(logits.size, p=softmax(logits)))
+
+    def _stall_guard(self, obs: dict[str, np.ndarray]) -> int:
+        """The stall guard's neighbour, or -1 when the network decides (see ``AttentionConfig.stall_legs``).
+
+        A camera that repeats its error (the deployment, its twin) pins the cells it has seen: another
+        look there changes nothing, and a network trained where every look still helps can then fly back
+        and forth between two such nodes until the budget is spent (``benchmarks/RESULTS.md``, issue 17,
+        fifth session). The guard sees it in the belief (its total variance stopped falling) and flies the
+        quickest roadmap path to the node whose one look gains most per second of flight (the network's
+        look-gain input over the flight time), then resets its window and hands back to the network.
+        """
+        legs = self.settings.stall_legs
+        if not legs:
+            return -1
+        view = self.view
+        cur = int(np.asarray(obs["current_node"]).reshape(-1)[0])
+        mask = np.asarray(obs["action_mask"]).astype(bool).reshape(-1)
+        if self._escape:  # on the way: the next node of the path, while its leg is affordable
+            if self._escape[0] == cur:
+                self._escape.pop(0)
+            if not self._escape:  # arrived: the network again, with a fresh window
+                self._totals = []
+            else:
+                hit = np.flatnonzero(view.roadmap.neighbours[cur] == self._escape[0])
+                if hit.size and mask[hit[0]]:
+                    return int(hit[0])
+                self._escape = []
+        self._totals.append(float(view.belief.variance.sum()))
+        del self._totals[:-(legs + 1)]
+        if not (len(self._totals) > legs and self._totals[-1] > (1.0 - self.settings.stall_drop) * self._totals[0]):
+            return -1
+        from ..planners.far import best_far_target
+        from .features import LookGain
+
+        gains = LookGain.of(view)(view.belief.variance, view.belief_roi(), view.error_states())
+        rate, action, path = best_far_target(view, obs, np.arange(view.roadmap.n_nodes),
+                                             lambda t, ok: np.where(ok, gains / np.where(ok, t, 1.0), -np.inf),
+                                             with_path=True)
+        if action < 0 or not rate > 0 or not mask[action]:  # nothing worth a flight: the network decides
+            return -1
+        self._escape = path
+        return action

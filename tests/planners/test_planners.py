@@ -207,3 +207,34 @@ def test_planner_configs_share_the_suites_validation(make, message):
     with pytest.raises(ValueError) as err:
         make()
     assert str(err.value) == message
+
+
+def test_tasks_that_share_a_roadmap_keep_their_own_legs_and_clocks():
+    """``Grid15Eval-v1`` and the deployment's twin share one roadmap object but not their camera (the
+    twin's read-outs carry the camera's repeated error) nor their clock (the twin's legs ramp up and
+    down): greedy's leg read-outs and the far targets' flight-time graph, cached per roadmap, are each
+    task's own in one process, whichever task came first (a cache keyed by the roadmap and an object's
+    ``id`` served a freed object's entries to its successor at the same address)."""
+    from ipp_bench.planners.far import duration_graph
+    from ipp_bench.planners.greedy import leg_batch
+    from ipp_bench.sensor import stack
+
+    grid, twin = make_env("ipp_bench/Grid15Eval-v1"), make_env("ipp_bench/Weed15Twin-v1")
+    grid.reset(seed=0)
+    twin.reset(seed=0)
+    assert grid.roadmap is twin.roadmap
+    gv, tv = RobotView(grid), RobotView(twin)
+    other = make_env("ipp_bench/Grid15Eval-v1")
+    other.reset(seed=1)
+    assert gv.static_key() != tv.static_key() and gv.static_key() == RobotView(other).static_key()
+    node = 7
+    leg_batch(gv, node), duration_graph(gv)  # built first, from the other camera and clock
+    rm = twin.roadmap
+    batch = leg_batch(tv, node)
+    assert batch.index.size > 0
+    for row, j in enumerate(batch.index):
+        var = stack(tv.leg_observations(rm.positions[node], rm.positions[rm.neighbours[node][j]]))[2]
+        np.testing.assert_array_equal(batch.var[row, :var.size], var)
+    graph = duration_graph(tv).toarray()
+    np.testing.assert_allclose(graph[node, rm.neighbours[node]], tv.neighbour_durations(node))
+    assert not np.allclose(graph[node, rm.neighbours[node]], duration_graph(gv).toarray()[node, rm.neighbours[node]])

@@ -170,3 +170,91 @@ def test_invariant_network_runs_as_a_planner_on_every_size(tmp_path):
             obs, *_ = env.step(a)
     with pytest.raises(ValueError, match="NetConfig.invariant needs node_dim = 6 without rate_skip"):
         NetConfig(node_dim=7, rate_skip=True, invariant=True)
+
+
+def _error_belief(env, neighbour_corr: float = 0.0):
+    """A camera-error belief on ``env``'s grid: an uncorrelated field prior, the task's error constants
+    (``neighbour_corr`` for the persistent errors' spatial correlation), after a few 8 m looks."""
+    import dataclasses
+
+    from ipp_bench.belief import PersistentErrorBelief
+
+    rng = np.random.default_rng(4)
+    n = env.config.grid.n_cells
+    sensor = dataclasses.replace(env.sensor.cfg, persistent_neighbour_corr=neighbour_corr)
+    belief = PersistentErrorBelief(GPBelief(rng.uniform(0.2, 0.8, n), np.diag(rng.uniform(0.02, 0.15, n))), sensor)
+    low = np.flatnonzero(env.roadmap.positions[:, 2] < 10.0)
+    for i in rng.choice(low, 12, replace=False):  # some cells seen, a few of them several times
+        obs = env.sensor.observe(env.roadmap.positions[i])
+        belief.update([obs], [rng.uniform(0.0, 1.0, obs.m)])
+    return belief
+
+
+def test_camera_error_look_gain_is_the_augmented_kalman_formula_for_single_cell_read_outs():
+    """On the deployment's sensor (persistent per-cell error states), with an uncorrelated belief and
+    independent cells' errors, an 8 m read-out's rows are single cells: the feature equals the exact
+    reduction of the batch formula on the augmented state [x, u_1, u_2] (the white noise at the
+    predicted value's scale), and the white-noise formula overstates it where cells were seen before."""
+    from ipp_bench.belief import value_scale
+
+    env = gym.make("ipp_bench/Weed15Twin-v1").unwrapped
+    env.reset(seed=0)
+    belief = _error_belief(env)
+    n, P = env.config.grid.n_cells, belief.state.cov
+    roi = np.random.default_rng(5).random(n) < 0.6
+    var = belief.field.variance
+    gain = LookGain.of(env)(var, roi, belief)
+    white = LookGain.of(env)(var, roi)
+    before = var[roi].sum()
+    low = np.flatnonzero(env.roadmap.positions[:, 2] < 10.0)
+    checked = repeated = 0
+    for i in low:
+        obs = env.sensor.observe(env.roadmap.positions[i])
+        off = belief.offset[obs.factor]
+        sd = np.where(belief.seen[obs.cells], belief.sd[obs.factor][obs.cells],
+                      np.sqrt(belief.variances[obs.factor] * value_scale(belief.field.mean[obs.cells], belief.floor)))
+        H = np.zeros((obs.m, P.shape[0]))
+        H[np.arange(obs.m), obs.cells] = 1.0  # W = I at 8 m
+        H[np.arange(obs.m), obs.cells + off] = sd
+        R = (obs.var - obs.persistent) * value_scale(belief.field.mean[obs.cells], belief.floor)
+        S = H @ P @ H.T + np.diag(R)
+        K = P[:n] @ H.T
+        exact = 10 * np.einsum("ij,jk,ik->i", K, np.linalg.inv(S), K)[roi].sum() / before
+        assert gain[i] == pytest.approx(exact, rel=1e-5)
+        checked += 1
+        if belief.seen[obs.cells].all():
+            repeated += 1
+            assert white[i] > 2 * gain[i]  # white noise: another look would pin the error again
+    assert checked > 20 and repeated > 0
+
+
+def test_camera_error_states_feed_the_planners_feature_and_white_noise_tasks_keep_theirs():
+    from ipp_bench.belief import error_states
+
+    twin = gym.make("ipp_bench/Weed15Twin-v1").unwrapped
+    obs, _ = twin.reset(seed=1)
+    view = RobotView(twin)
+    assert view.error_states() is twin.mission.belief_model is error_states(twin.mission)
+    got = add_gain_feature(obs, view)["node_features"][:, 5]
+    want = LookGain.of(twin)(twin.mission.belief.variance, twin.mission.belief_roi(), twin.mission.belief_model)
+    np.testing.assert_array_equal(got, want)
+    grid = gym.make("ipp_bench/Grid15Eval-v1").unwrapped
+    obs, _ = grid.reset(seed=1)
+    assert RobotView(grid).error_states() is None
+    np.testing.assert_array_equal(add_gain_feature(obs, RobotView(grid))["node_features"][:, 5],
+                                  LookGain.of(grid)(grid.mission.belief.variance, grid.mission.belief_roi()))
+
+
+def test_tasks_that_share_a_roadmap_keep_their_own_cameras_feature():
+    """Grid15Eval-v1 and the deployment's twin share one roadmap object but not their camera: the
+    feature of each is the one built from its own camera, whichever task built its feature first."""
+    grid, twin = gym.make("ipp_bench/Grid15Eval-v1").unwrapped, gym.make("ipp_bench/Weed15Twin-v1").unwrapped
+    grid.reset(seed=0)
+    twin.reset(seed=0)
+    assert grid.roadmap is twin.roadmap and grid.sensor.cfg != twin.sensor.cfg
+    var, roi = twin.mission.belief.variance, twin.mission.belief_roi()
+    LookGain.of(grid)(var, roi)  # built first, from the other camera
+    own = LookGain(twin.roadmap.positions, twin.sensor, twin.config.grid.n_cells)
+    np.testing.assert_array_equal(LookGain.of(twin)(var, roi), own(var, roi))
+    np.testing.assert_array_equal(LookGain.of(twin).noise, own.noise)
+    assert not np.array_equal(LookGain.of(grid).noise, own.noise)

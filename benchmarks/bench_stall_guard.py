@@ -1,14 +1,15 @@
 """How often does the attention planner's stall guard decide, and where?
 
 The ``attention`` planner hands a decision to its stall guard when the belief's total variance fell
-by less than ``stall_drop`` over the last ``stall_legs`` decisions (``AttentionConfig``); this
+by less than ``stall_cells`` times its mean cell variance over the last ``stall_legs`` decisions
+(``AttentionConfig``); this
 prints, per task, the share of the planner's decisions that the guard made, how many episodes it
 fired in, and the ROI uncertainty reduction at the end with and without it (``stall_legs=0``),
 over the leaderboard's episode seeds (``--seed 0``) or others (``--seed 1``: the validation used to
 choose the guard's settings).
 
     python benchmarks/bench_stall_guard.py --episodes 20
-    python benchmarks/bench_stall_guard.py --planner attention:stall_drop=0.01 --tasks Weed15Twin-v1
+    python benchmarks/bench_stall_guard.py --planner attention:stall_cells=1 --tasks Weed15Twin-v1
 """
 
 from __future__ import annotations

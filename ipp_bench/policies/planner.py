@@ -31,12 +31,13 @@ from ..planners.base import GraphPlanner, RobotView, softmax
 DEFAULT_CONTEXT_NODES = 4096
 MIN_CONTEXT_NODES = 64  # [-] a context smaller than this is hardly more than the k neighbours
 CONTEXT_CACHE = 256  # [-] context node sets kept (least recently used dropped), one per current node
-#: the stall guard's defaults: a belief whose total variance fell by less than 0.3 % over 4 decisions has
+#: the stall guard's defaults: a belief whose total variance fell by less than 2.7 times its mean cell variance
+#: (2.7 cells' worth: 1.2 % of it on 15 x 15, 0.3 % on 30 x 30, 0.016 % on 128 x 128) over 4 decisions has
 #: stalled (the network flies back and forth over cells its camera has already pinned, on the deployment
 #: and its twin, or over cells it has mapped, late in a hotspot mission); chosen on validation episodes
-#: among 0.1-3 % and 4 or 6 decisions (benchmarks/RESULTS.md, issue 17, fifth session)
+#: (benchmarks/RESULTS.md, issue 17, fifth session)
 STALL_LEGS = 4
-STALL_DROP = 3e-3
+STALL_CELLS = 2.7
 
 
 @dataclass(frozen=True)
@@ -51,26 +52,28 @@ class AttentionConfig:
     # 0 = every node. Roadmaps of at most this many nodes (every task up to 30 x 30: 1800) see all of
     # them, so the decisions there are those of full attention, byte for byte.
     context_nodes: int = DEFAULT_CONTEXT_NODES
-    # [-] the stall guard: when the belief's total variance fell by less than stall_drop (relative) over
-    # the last stall_legs decisions, the planner flies to the node whose one look gains most per second
-    # of flight (the network's own look-gain input, Dijkstra on the roadmap's flight times), then hands
-    # back to the network; 0 = off (the network alone)
+    # the stall guard: when the belief's total variance fell by less than stall_cells times its mean cell
+    # variance (n_cells x its relative drop: the same on every map size) over the last stall_legs
+    # decisions, the planner flies to the node whose one look gains most per second of flight (the
+    # network's own look-gain input, Dijkstra on the roadmap's flight times), then hands back to the
+    # network; stall_legs = 0: off (the network alone)
     stall_legs: int = STALL_LEGS
-    stall_drop: float = STALL_DROP  # [-] in (0, 1)
+    stall_cells: float = STALL_CELLS  # [cells] > 0
 
     def __post_init__(self) -> None:
         try:
             legs = int(self.stall_legs.strip()) if isinstance(self.stall_legs, str) else self.stall_legs
-            drop = float(self.stall_drop)
+            cells = float(self.stall_cells)
         except (TypeError, ValueError):
-            legs, drop = -1, float("nan")
+            legs, cells = -1, float("nan")
         if isinstance(legs, bool) or not isinstance(legs, int) or legs < 0:
             raise ValueError(f"attention.stall_legs = {self.stall_legs!r} is invalid: expected 0 (no stall guard) "
                              "or an integer >= 1")
-        if not 0.0 < drop < 1.0:
-            raise ValueError(f"attention.stall_drop = {self.stall_drop!r} is invalid: expected a number in (0, 1)")
+        if not 0.0 < cells < float("inf"):
+            raise ValueError(f"attention.stall_cells = {self.stall_cells!r} is invalid: expected a number > 0 "
+                             "(cells' worth of the belief's mean cell variance)")
         object.__setattr__(self, "stall_legs", legs)
-        object.__setattr__(self, "stall_drop", drop)
+        object.__setattr__(self, "stall_cells", cells)
         raw = self.context_nodes
         try:  # an int, or its text from "attention:context_nodes=512"
             context = int(raw.strip()) if isinstance(raw, str) else (int(raw) if int(raw) == raw else -1)
@@ -281,7 +284,8 @@ class AttentionPlanner(GraphPlanner):
                 self._escape = []
         self._totals.append(float(view.belief.variance.sum()))
         del self._totals[:-(legs + 1)]
-        if not (len(self._totals) > legs and self._totals[-1] > (1.0 - self.settings.stall_drop) * self._totals[0]):
+        n = view.config.grid.n_cells
+        if not (len(self._totals) > legs and self._totals[0] - self._totals[-1] < self.settings.stall_cells * self._totals[0] / n):
             return -1
         from ..planners.far import best_far_target
         from .features import LookGain

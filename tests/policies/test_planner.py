@@ -220,9 +220,10 @@ def test_the_shipped_average_is_its_documented_formula_and_the_script_rebuilds_i
 @pytest.mark.parametrize("spec, message", [
     ("stall_legs=-1", r"attention.stall_legs = -1 is invalid: expected 0 \(no stall guard\) or an integer >= 1"),
     ("stall_legs=two", r"attention.stall_legs = 'two' is invalid: expected an integer"),
-    ("stall_drop=0", r"attention.stall_drop = 0.0 is invalid: expected a number in \(0, 1\)"),
-    ("stall_drop=1.5", r"attention.stall_drop = 1.5 is invalid: expected a number in \(0, 1\)"),
-    ("stall_drop=nan", r"attention.stall_drop = nan is invalid: expected a number in \(0, 1\)"),
+    ("stall_cells=0", r"attention.stall_cells = 0.0 is invalid: expected a number > 0 \(cells' worth"),
+    ("stall_cells=-2", r"attention.stall_cells = -2.0 is invalid: expected a number > 0"),
+    ("stall_cells=inf", r"attention.stall_cells = inf is invalid: expected a number > 0"),
+    ("stall_cells=nan", r"attention.stall_cells = nan is invalid: expected a number > 0"),
 ])
 def test_a_bad_stall_guard_setting_is_refused_in_one_line(spec, message):
     with pytest.raises(ValueError, match=message) as err:

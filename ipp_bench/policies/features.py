@@ -126,8 +126,9 @@ class LookGain:
                 off = errors.offset[int(f)]
                 unseen_sd = np.sqrt(errors.variances[int(f)] * value_scale(mean, errors.floor))
                 d = np.where(errors.seen, errors.sd[int(f)], unseen_sd)
-                k = var + d * cov[cells, cells + off]
-                q2 = np.maximum(k + d * cov[cells, cells + off] + d * d * cov[cells + off, cells + off], 0.0)
+                cross = cov[cells, cells + off]  # Cov(x_c, u_c)
+                k = var + d * cross
+                q2 = np.maximum(k + d * cross + d * d * cov[cells + off, cells + off], 0.0)
             else:
                 k, q2 = var, var
             ratio = np.divide(k * k, q2, out=np.zeros(n), where=q2 > 0)

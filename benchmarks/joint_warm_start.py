@@ -77,7 +77,10 @@ def main(argv: list[str] | None = None) -> int:
     cfg = TrainArgs(task=args.tasks[0], mix=args.tasks[1:], invariant=True, embed_dim=64, ff_dim=256, reward="metric",
                     init="" if args.init == "none" else args.init, warm_start="greedy",
                     warm_start_for=[] if teacher == "greedy" else
-                    [f"{t}=attention:checkpoint={teacher}" for t in dict.fromkeys(args.tasks) if "Hotspots" in t],
+                    # the teacher is the network alone (stall_legs=0), as when attention_v4.pt was made,
+                    # before the planner's stall guard existed: with the guard its labels would differ
+                    [f"{t}=attention:checkpoint={teacher},stall_legs=0" for t in dict.fromkeys(args.tasks)
+                     if "Hotspots" in t],
                     bc_episodes=args.episodes, bc_rounds=args.rounds, bc_round_episodes=args.round_episodes,
                     bc_epochs=args.epochs, bc_lr=args.lr,
                     bc_temperature=0.05, gamma=0.99, batch_size=128, eval_episodes=16, val_task=VAL)

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from .base import beats, first_best
+
 _GRAPHS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
@@ -51,7 +53,7 @@ def best_far_target(view: Any, obs: dict[str, np.ndarray], targets: np.ndarray, 
     if not ok.any():
         return none
     far = rates(t, ok)
-    j = int(np.argmax(far))
+    j = first_best(far)
     if not np.isfinite(far[j]):
         return none
     path = [int(targets[j])]
@@ -68,10 +70,10 @@ def far_move(view: Any, obs: dict[str, np.ndarray], scores: np.ndarray, targets:
     it: the rule of the ``oracle`` reference (on the true ROI) and of the ``far`` probe (on the
     belief's). ``look_gains()`` gives the gain of one look at each of ``targets`` (called only when a
     target is reachable within the budget)."""
-    best = int(np.argmax(scores))
+    best = first_best(scores)
     rate, action = best_far_target(
         view, obs, targets, lambda t, ok: np.where(ok, look_gains() / np.where(ok, t, 1.0), -np.inf))
-    if not rate > scores[best]:
+    if not beats(rate, scores[best]):
         return best
     return action if obs["action_mask"][action] else best
 
@@ -147,6 +149,6 @@ def far_scores(view: Any, obs: dict[str, np.ndarray], top: int = FAR_TOP) -> np.
         return out
 
     rate, action = best_far_target(view, obs, ft.targets, rates)
-    if rate > scores.max() and mask[action]:
+    if beats(rate, scores.max()) and mask[action]:
         scores[action] = rate
     return scores

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..belief import LegBatch
 from ..sensor import stack
-from .base import GraphPlanner
+from .base import GraphPlanner, first_best
 
 
 @dataclass(frozen=True)
@@ -79,4 +79,4 @@ class GreedyPlanner(GraphPlanner):
         return np.where(obs["action_mask"].astype(bool), scores, -np.inf)
 
     def act(self, obs):
-        return int(np.argmax(self.scores(obs)))
+        return first_best(self.scores(obs))

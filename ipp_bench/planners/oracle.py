@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .base import first_best
 from .far import far_move
 from .greedy import GreedyPlanner
 
@@ -108,6 +109,6 @@ class OraclePlanner(GreedyPlanner):
             self._set_targets(roi)
         scores = self.scores(obs)
         if self._looks is None:
-            return int(np.argmax(scores))
+            return first_best(scores)
         return far_move(self.view, obs, scores, self._targets,
                         lambda: self._looks.trace_reductions(self.view.belief.cov, self._roi))

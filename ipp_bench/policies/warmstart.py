@@ -64,6 +64,9 @@ class _PlannerExpert:
         """The expert's action and, where the planner exposes them, its scores per neighbour."""
         if hasattr(self.planner, "scores"):
             scores = np.asarray(self.planner.scores(obs), dtype=np.float64)
+            # np.argmax, not the planners' first_best: the shipped checkpoints' warm starts were made
+            # with it, and their commands reproduce them (on the CPU kind that made them: a mirror tie
+            # goes the way its rounding falls)
             return int(np.argmax(scores)), scores
         return int(self.planner.act(obs)), None
 

@@ -238,3 +238,40 @@ def test_tasks_that_share_a_roadmap_keep_their_own_legs_and_clocks():
     graph = duration_graph(tv).toarray()
     np.testing.assert_allclose(graph[node, rm.neighbours[node]], tv.neighbour_durations(node))
     assert not np.allclose(graph[node, rm.neighbours[node]], duration_graph(gv).toarray()[node, rm.neighbours[node]])
+
+
+def test_first_best_breaks_ties_by_index_and_keeps_real_gaps():
+    from ipp_bench.planners.base import TIE_RTOL, beats, first_best
+
+    one = 0.7985626607787054
+    assert first_best([one, np.nextafter(one, 2.0), -np.inf]) == 0  # a tie up to the last bits
+    assert first_best([-np.inf, one, one * (1 + 1e-6)]) == 2  # a real difference wins
+    assert first_best([-np.inf, -np.inf]) == 0
+    assert first_best([-3.0, -3.0 * (1 - TIE_RTOL / 10), -np.inf]) == 0
+    assert not beats(np.nextafter(one, 2.0), one) and beats(one * (1 + 1e-6), one)
+    assert beats(0.1, -np.inf) and not beats(-np.inf, -np.inf)
+
+
+def test_greedy_choice_does_not_depend_on_the_last_bits_of_a_mirror_tie(monkeypatch):
+    """On ``Grid15Eval-v1``, seed 1878776328, greedy's second decision has two mirror-image legs that
+    score the same up to 3e-16 relative; which of the two ``np.argmax`` took depended on the CPU's BLAS
+    kernels (the committed rows came from an AVX-512 machine, an AVX2 one flew another path). Nudging
+    either of them up by one ulp must not change greedy's choice: the lower index."""
+    from ipp_bench.planners import greedy as G
+
+    env = make_env("ipp_bench/Grid15Eval-v1")
+    obs, _ = env.reset(seed=1878776328)
+    planner = make_planner("greedy")
+    planner.reset(RobotView(env), 1878776328)
+    obs, *_ = env.step(planner.act(obs))
+    scores = planner.scores(obs)
+    top = np.flatnonzero(scores >= scores.max() * (1 - 1e-12))
+    assert top.size == 2, scores  # the mirror pair
+    real = G.greedy_scores
+    for nudged in top:
+        def one_ulp_up(view, node, roi=None, _i=nudged):
+            s = real(view, node, roi).copy()
+            s[_i] = np.nextafter(s[_i], np.inf)
+            return s
+        monkeypatch.setattr(G, "greedy_scores", one_ulp_up)
+        assert planner.act(obs) == top[0]

@@ -11,9 +11,10 @@ episodes per task on the validation seeds).
     python benchmarks/joint_warm_start.py --out runs/joint   # about 8 minutes on one core
 
 ``ipp_bench/policies/checkpoints/attention_v4.pt`` is its output with the defaults, from
-``attention_v3.pt`` (averaged with it into the default, ``attention_v5.pt``;
-``benchmarks/RESULTS.md``, "Attention at the frontier, third session" and "fourth session", with
-the variants tried).
+``attention_v3.pt`` (averaged with it into ``attention_v5.pt``; ``benchmarks/RESULTS.md``,
+"Attention at the frontier, third session" and "fourth session", with the variants tried). The
+default, ``attention_v6.pt``, is its output with ``Grid20Train-v1`` named twice, ``--episodes 120
+--round-episodes 60`` (the exact command: the checkpoint README; "sixth" and "seventh session").
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ from ipp_bench.policies.network import AttentionNet, NetConfig
 
 FORMAT = "ipp_bench.attention/1"
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
-SHIPPED_CHECKPOINT = CHECKPOINT_DIR / "attention_v5.pt"  # attention_v4.pt, attention_v3.pt, attention_v2.pt, attention_v1.pt, v0: attention_grid15.pt (still shipped)
+SHIPPED_CHECKPOINT = CHECKPOINT_DIR / "attention_v6.pt"  # attention_v5.pt, attention_v4.pt, attention_v3.pt, attention_v2.pt, attention_v1.pt, v0: attention_grid15.pt (still shipped)
 
 
 class CheckpointError(ValueError):

@@ -1,6 +1,6 @@
 """``attention``: the trained attention policy of the paper as a roadmap planner.
 
-Loads the checkpoint shipped in the package (``ipp_bench/policies/checkpoints/attention_v5.pt``)
+Loads the checkpoint shipped in the package (``ipp_bench/policies/checkpoints/attention_v6.pt``)
 or ``checkpoint=PATH`` (an ``export.pt`` of an ``ipp-bench train`` run), and picks the neighbour
 with the highest probability (``sample=true``: draws from the policy instead, seeded per episode).
 Needs torch (``pip install "ipp-bench[train]"``); the planner registry imports it lazily. It

@@ -13,8 +13,9 @@ episodes per task on the validation seeds).
 ``ipp_bench/policies/checkpoints/attention_v4.pt`` is its output with the defaults, from
 ``attention_v3.pt`` (averaged with it into ``attention_v5.pt``; ``benchmarks/RESULTS.md``,
 "Attention at the frontier, third session" and "fourth session", with the variants tried). The
-default, ``attention_v6.pt``, is its output with ``Grid20Train-v1`` named twice, ``--episodes 120
---round-episodes 60`` (the exact command: the checkpoint README; "sixth" and "seventh session").
+default, ``attention_v6.pt``, is its output with ``Grid20Train-v1`` and ``Grid30Train-v1`` named twice
+each, ``--episodes 140 --round-episodes 70`` (the exact command: the checkpoint README; RESULTS,
+"sixth" and "seventh session").
 """
 
 from __future__ import annotations

@@ -18,25 +18,25 @@ planner's, paired over the episodes both ran [95 % bootstrap interval, the repor
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
-from collections import defaultdict
 from pathlib import Path
 
-from ipp_bench.eval.report import bootstrap_ci
+from ipp_bench.eval.report import Aggregate, bootstrap_ci
+from ipp_bench.eval.results import read_results
 
 PAPER = ("random", "coverage", "mcts")  # the paper's baselines (MCTS at whatever setting the rows hold)
 KEY = "uncertainty_reduction_pct"
 
 
-def load(paths: list[Path]) -> dict:
-    """rows[task][planner][time][seed] = the uncertainty reduction."""
-    rows: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(dict)))
+def load(paths: list[Path]) -> Aggregate:
+    """The rows of every file, grouped by task, planner and time (the report's :class:`Aggregate`)."""
+    rows = []
     for path in paths:
-        with path.open(newline="") as fh:
-            for r in csv.DictReader(fh):
-                rows[r["task"]][r["planner"]][float(r["time_s"])][int(r["seed"])] = float(r[KEY])
-    return rows
+        try:
+            rows += read_results(path)
+        except ValueError as err:  # not a leaderboard's results.csv (its columns, say)
+            raise ValueError(f"{path}: {err}") from None
+    return Aggregate(rows)
 
 
 def paired(a: dict[int, float], b: dict[int, float]) -> tuple[float, float | None, float | None]:
@@ -51,14 +51,15 @@ def _fmt(ci) -> str:
     return f"**{text}**" if bold else text
 
 
-def check(rows: dict, planner: str) -> tuple[str, dict[str, bool]]:
+def check(agg: Aggregate, planner: str) -> tuple[str, dict[str, bool]]:
     lines, verdicts = [], {}
-    for task in sorted(rows):
-        planners = rows[task]
-        if planner not in planners:
+    for task in sorted(agg.tasks):
+        if not agg.episodes(task, planner):
             continue
+        times = agg.times[task]
+        planners = {p: {t: agg.by_seed(task, p, t, KEY) for t in times}
+                    for p in agg.planners if agg.episodes(task, p)}
         me = planners[planner]
-        times = sorted(me)
         others = [p for p in sorted(planners) if p != planner]
         short = task.split("/")[-1]
         lines += [f"\n### {short}: {planner} minus each planner [95 % paired interval]\n",
@@ -117,7 +118,11 @@ def main(argv: list[str] | None = None) -> int:
     missing = [str(p) for p in args.results if not p.is_file()]
     if missing:
         ap.error(f"not found: {', '.join(missing)}")
-    text, verdicts = check(load(args.results), args.planner)
+    try:
+        agg = load(args.results)
+    except ValueError as err:
+        ap.error(str(err))
+    text, verdicts = check(agg, args.planner)
     if not text:
         ap.error(f"no task in these files has rows of --planner {args.planner!r}")
     print(text)

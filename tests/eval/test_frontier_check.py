@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import csv
 import re
 import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from ipp_bench.eval.results import COLUMNS, format_header, format_rows
 
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "frontier_check.py"
 TIMES = (50.0, 100.0, 150.0, 200.0)
@@ -25,14 +26,16 @@ def fc():
 
 
 def _write(path: Path, rows: dict) -> Path:
-    """rows[(task, planner)] = function(time, seed) -> reduction."""
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["task", "planner", "seed", "time_s", "uncertainty_reduction_pct"])
-        for (task, planner), f in rows.items():
-            for seed in range(12):
-                for t in TIMES:
-                    w.writerow([task, planner, seed, t, f(t, seed)])
+    """rows[(task, planner)] = function(time, seed) -> reduction, as a leaderboard's results.csv."""
+    out = []
+    for (task, planner), f in rows.items():
+        for seed in range(12):
+            for t in TIMES:
+                row = {c: 0.0 for c in COLUMNS}
+                row.update(task=task, planner=planner, seed=seed, time_s=t, decisions=1,
+                           uncertainty_reduction_pct=float(f(t, seed)))
+                out.append(row)
+    path.write_text(format_header() + format_rows(out))
     return path
 
 
@@ -92,3 +95,13 @@ def test_no_rows_of_the_planner_is_one_line(fc, tmp_path, capsys):
     with pytest.raises(SystemExit) as err:
         fc.main([str(path)])
     assert err.value.code == 2 and "no task in these files has rows of --planner 'attention'" in capsys.readouterr().err
+
+
+def test_a_file_that_is_no_results_csv_is_one_line(fc, tmp_path, capsys):
+    path = tmp_path / "other.csv"
+    path.write_text("task,planner,seed\nx,y,1\n")
+    with pytest.raises(SystemExit) as err:
+        fc.main([str(path)])
+    msg = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.value.code == 2 and f"{path}: results.csv has columns" in msg and "expected" in msg
+    assert "Traceback" not in msg

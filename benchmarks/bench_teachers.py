@@ -23,13 +23,26 @@ same episodes:
   for the neighbours too); cheaper, and measured worse than greedy (RESULTS, "Attention policy at
   the frontier").
 
-All predict with the belief covariance alone (the ROI of the decision held fixed), as greedy and
-MCTS do; none touches the truth.
+Probes of the 20 x 20 wall at 150 s (issue 17, eighth session: can a planner on the belief be at
+greedy's level early and at the lawnmower's when its low sweep ends?):
+
+- ``lateroll``: greedy until ``switch_s`` seconds are flown, then ``rollout``.
+- ``roibeta``: greedy on the ROI ``mean + beta sigma >= mu_th`` with its own ``beta``.
+- ``knob``: greedy's gain over ``duration ** power``; ``low_after_s``: only the lowest level after that.
+- ``graphcover``: the ``coverage`` lawnmower's lanes snapped to the roadmap (how near a roadmap
+  planner comes to the continuous lawnmower).
+- ``sweeproi``: greedy until ``switch_s``, then the lawnmower's lanes cut to the belief-ROI cells
+  whose variance is still above ``var_frac`` of the prior's.
+
+Those that score predict with the belief covariance alone (the ROI of the decision held fixed), as
+greedy and MCTS do; none touches the truth.
 
     python benchmarks/bench_teachers.py --task ipp_bench/Grid30Train-v1 --episodes 20 --workers 16 \
         --planners greedy rollout:horizon_s=30 rollout:horizon_s=60
     python benchmarks/bench_teachers.py --task ipp_bench/Hotspots30Train-v2 --episodes 8 --workers 2 \
         --planners greedy far far:top=16
+    python benchmarks/bench_teachers.py --task ipp_bench/Grid20Train-v1 --episodes 16 --workers 2 \
+        --planners greedy coverage graphcover knob:low_after_s=50 sweeproi
 
 Seeds are 10,000,000 + i. Prints the mean ROI uncertainty reduction at the report times, the
 paired difference to greedy with a 95% bootstrap interval, and the wall time per decision.
@@ -50,6 +63,7 @@ from ipp_bench.envs import make_env
 from ipp_bench.eval.runner import run_episode
 from ipp_bench.planners import register
 from ipp_bench.planners.far import FarTargets, duration_graph, far_move, far_scores
+from ipp_bench.planners.base import first_best
 from ipp_bench.planners.greedy import GreedyPlanner, greedy_scores
 from ipp_bench.planners.mcts import MCTSConfig, MCTSPlanner, _State
 from ipp_bench.policies.features import LookGain
@@ -92,6 +106,176 @@ class RolloutGreedy(MCTSPlanner):
             if value > best_value + 1e-12:
                 best, best_value = int(a), value
         return best
+
+
+@dataclass(frozen=True)
+class LateRolloutConfig(RolloutConfig):
+    switch_s: float = 75.0  # [s] of flight after which the rollout replaces greedy
+
+
+class LateRollout(RolloutGreedy):
+    """Greedy until ``switch_s`` seconds of the mission are flown, then the greedy rollout."""
+
+    name = "lateroll"
+    Config = LateRolloutConfig
+
+    def act(self, obs):
+        budget = float(self.view.config.mission.budget_s)
+        if budget - float(self.view.remaining_s) < self.settings.switch_s:
+            scores = greedy_scores(self.view, int(obs["current_node"][0]))
+            return first_best(np.where(obs["action_mask"].astype(bool), scores, -np.inf))
+        return super().act(obs)
+
+
+@dataclass(frozen=True)
+class RoiBetaConfig:
+    beta: float = 1.0  # [-] the ROI the score is computed on: mean + beta sigma >= mu_th
+
+
+class RoiBetaGreedy(GreedyPlanner):
+    """Greedy on a wider (or narrower) belief ROI than the task's ``beta``: more of the map counts."""
+
+    name = "roibeta"
+    Config = RoiBetaConfig
+
+    def roi(self) -> np.ndarray:
+        b, m = self.view.belief, self.view.config.mission
+        return b.mean + self.settings.beta * np.sqrt(np.maximum(b.variance, 0.0)) >= m.mu_th
+
+
+def _lawn_ends(view, seed: int, overlap: float = 0.0) -> np.ndarray:
+    """The ``coverage`` lawnmower's lane ends [m], its pattern and the reverse, from the view's start."""
+    from ipp_bench.planners.simple import CoverageConfig, CoveragePlanner
+
+    lawn = CoveragePlanner(CoverageConfig(overlap=overlap))
+    lawn.reset(view, seed)
+    return np.array([lawn._target, *(next(lawn._targets) for _ in range(4 * view.config.grid.rows - 1))])
+
+
+def _snap(positions: np.ndarray, pts) -> np.ndarray:
+    """Each point moved to its nearest roadmap node, repeats in a row dropped."""
+    snapped = [positions[np.argmin(np.linalg.norm(positions - np.asarray(p), axis=1))] for p in pts]
+    return np.array([q for i, q in enumerate(snapped) if i == 0 or not np.allclose(q, snapped[i - 1])])
+
+
+def _toward(view, obs, target: np.ndarray) -> int:
+    """The valid neighbour nearest ``target`` (ties: the lowest index)."""
+    nb = view.roadmap.neighbours[int(obs["current_node"][0])]
+    d = np.linalg.norm(view.roadmap.positions[nb] - target, axis=1)
+    return first_best(np.where(obs["action_mask"].astype(bool), -d, -np.inf))
+
+
+@dataclass(frozen=True)
+class GraphCoverConfig:
+    overlap: float = 0.0  # [-] share of the footprint neighbouring lanes overlap
+
+
+class GraphCover(GreedyPlanner):
+    """The lawnmower on the roadmap: the lowest level's nodes lane by lane, one footprint apart, each
+    leg the neighbour nearest the next lane end (how near a roadmap planner can come to ``coverage``)."""
+
+    name = "graphcover"
+    Config = GraphCoverConfig
+
+    def reset(self, view, seed: int) -> None:
+        super().reset(view, seed)
+        # lane ends snapped to the nearest roadmap nodes (the lowest level: the lawnmower's altitude)
+        self._pts, self._i = _snap(view.roadmap.positions, _lawn_ends(view, seed, self.settings.overlap)), 0
+
+    def act(self, obs):
+        view = self.view
+        node = int(obs["current_node"][0])
+        pos = view.roadmap.positions
+        while np.linalg.norm(pos[node] - self._pts[self._i % len(self._pts)]) < 1e-6:
+            self._i += 1
+        return _toward(view, obs, self._pts[self._i % len(self._pts)])
+
+
+@dataclass(frozen=True)
+class SweepRoiConfig:
+    switch_s: float = 50.0  # [s] of greedy flight before the sweep
+    var_frac: float = 0.3  # [-] ROI cells count while their variance is above this share of the prior's
+
+
+class SweepRoi(GraphCover):
+    """Greedy for ``switch_s`` seconds, then the lawnmower's lanes at the lowest level, cut to the
+    stretch of each lane whose footprint holds belief-ROI cells still above ``var_frac`` of the prior
+    variance, nearest lane end first; re-planned when the plan is flown, greedy when no lane is left."""
+
+    name = "sweeproi"
+    Config = SweepRoiConfig
+
+    def reset(self, view, seed: int) -> None:
+        GreedyPlanner.reset(self, view, seed)
+        from ipp_bench.belief import cell_centres
+
+        pts = _lawn_ends(view, seed)
+        self._lanes = np.unique(pts[:, 1])
+        self._x = (pts[:, 0].min(), pts[:, 0].max())
+        self._alt = view.config.graph.altitudes[0]
+        self._half = view.sensor.footprint_side(self._alt) / 2
+        g = view.config.grid
+        self._xy = cell_centres((g.rows, g.cols), g.resolution)
+        self._v0 = view.belief.variance.copy()
+        self._pts, self._i = np.zeros((0, 3)), 0
+
+    def _plan(self) -> None:
+        view = self.view
+        hot = view.belief_roi() & (view.belief.variance > self.settings.var_frac * self._v0)
+        segs = []
+        for y in self._lanes:
+            cells = self._xy[hot & (np.abs(self._xy[:, 1] - y) <= self._half)]
+            if cells.size:
+                lo, hi = np.clip([cells[:, 0].min(), cells[:, 0].max()], *self._x)
+                segs.append(((lo, y, self._alt), (hi, y, self._alt)))
+        here, pts = np.asarray(view.position, float), []
+        while segs:
+            d = [min(np.linalg.norm(np.subtract(a, here)), np.linalg.norm(np.subtract(b, here))) for a, b in segs]
+            a, b = segs.pop(int(np.argmin(d)))
+            if np.linalg.norm(np.subtract(b, here)) < np.linalg.norm(np.subtract(a, here)):
+                a, b = b, a
+            pts += [a, b]
+            here = np.asarray(b, float)
+        self._pts, self._i = (_snap(view.roadmap.positions, pts) if pts else np.zeros((0, 3))), 0
+
+    def act(self, obs):
+        view = self.view
+        if view.config.mission.budget_s - view.remaining_s >= self.settings.switch_s:
+            node = int(obs["current_node"][0])
+            pos = view.roadmap.positions
+            while self._i < len(self._pts) and np.linalg.norm(pos[node] - self._pts[self._i]) < 1e-6:
+                self._i += 1
+            if self._i >= len(self._pts):
+                self._plan()
+                while self._i < len(self._pts) and np.linalg.norm(pos[node] - self._pts[self._i]) < 1e-6:
+                    self._i += 1
+            if self._i < len(self._pts):
+                return _toward(view, obs, self._pts[self._i])
+        return first_best(self.scores(obs))
+
+
+@dataclass(frozen=True)
+class KnobConfig:
+    power: float = 1.0  # [-] score = gain / duration ** power (1: greedy's gain per second)
+    low_after_s: float = float("inf")  # [s] of flight after which only the lowest level's nodes are flown to
+
+
+class KnobGreedy(GreedyPlanner):
+    """Greedy with two knobs: how much a leg's flight time costs, and low flight only after a time."""
+
+    name = "knob"
+    Config = KnobConfig
+
+    def scores(self, obs) -> np.ndarray:
+        view = self.view
+        node = int(obs["current_node"][0])
+        dur = view.neighbour_durations(node, view.position)
+        s = greedy_scores(view, node) * dur ** (1.0 - self.settings.power)
+        mask = obs["action_mask"].astype(bool)
+        if view.config.mission.budget_s - view.remaining_s >= self.settings.low_after_s:
+            low = np.isclose(view.roadmap.positions[view.roadmap.neighbours[node], 2], view.config.graph.altitudes[0])
+            mask = mask & low if (mask & low).any() else mask
+        return np.where(mask, s, -np.inf)
 
 
 @dataclass(frozen=True)
@@ -175,6 +359,11 @@ def _episode(job):
     task, spec, seed = job
     register("rollout", f"{__name__}:RolloutGreedy")
     register("global", "bench_saturation:GlobalGreedy")
+    register("lateroll", f"{__name__}:LateRollout")
+    register("roibeta", f"{__name__}:RoiBetaGreedy")
+    register("graphcover", f"{__name__}:GraphCover")
+    register("sweeproi", f"{__name__}:SweepRoi")
+    register("knob", f"{__name__}:KnobGreedy")
     register("lookrate", f"{__name__}:LookRate")
     register("far", f"{__name__}:FarGreedy")
     register("farcheap", f"{__name__}:FarCheap")

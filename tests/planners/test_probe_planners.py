@@ -1,0 +1,106 @@
+"""The probe planners of ``benchmarks/bench_teachers.py`` (issue 17's G20 wall): each reduces to greedy,
+or to the lawnmower, where its definition says it must."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ipp_bench.envs import make_env
+from ipp_bench.eval.runner import run_episode
+from ipp_bench.planners import REGISTRY, make_planner, register
+from ipp_bench.planners.greedy import leg_batch  # the legs whose gain greedy divides by the flight time
+
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
+TASK = "ipp_bench/Grid15Train-v1"
+SEED = 10_000_003
+
+
+@pytest.fixture(scope="module")
+def bt():
+    script = BENCH / "bench_teachers.py"
+    if not script.is_file():
+        pytest.skip("benchmarks/ is not beside the package (an installed copy, not the repository)")
+    spec = importlib.util.spec_from_file_location("bench_teachers", script)
+    mod = importlib.util.module_from_spec(spec)
+    saved_registry, saved_module = dict(REGISTRY), sys.modules.get("bench_teachers")
+    sys.modules["bench_teachers"] = mod
+    spec.loader.exec_module(mod)
+    for name, cls in (("knob", "KnobGreedy"), ("roibeta", "RoiBetaGreedy"), ("lateroll", "LateRollout"),
+                      ("sweeproi", "SweepRoi"), ("graphcover", "GraphCover")):
+        register(name, f"bench_teachers:{cls}")
+    yield mod
+    # the probes are not the suite's planners: a later test's default planner list must not hold them
+    REGISTRY.clear()
+    REGISTRY.update(saved_registry)
+    if saved_module is None:
+        sys.modules.pop("bench_teachers", None)
+    else:
+        sys.modules["bench_teachers"] = saved_module
+
+
+def _fly(spec: str, on_decision=None):
+    res = run_episode(TASK, spec, SEED, env=make_env(TASK), on_decision=on_decision)
+    return [r["uncertainty_reduction_pct"] for r in res.report], res.decisions
+
+
+def test_switches_never_reached_are_greedy(bt):
+    """A switch later than the budget, power 1 and beta = the task's: the planner is greedy, decision by decision."""
+    greedy = _fly("greedy")
+    for spec in ("knob", "knob:low_after_s=1000", "roibeta:beta=1", "lateroll:switch_s=1000,top=2",
+                 "sweeproi:switch_s=1000"):
+        assert _fly(spec) == greedy, spec
+    assert _fly("knob:power=1.2") != greedy  # the knob does move the planner
+
+
+def test_knob_score_is_gain_over_duration_to_the_power(bt):
+    """score = greedy's gain per second x duration ** (1 - power) = gain / duration ** power, on the states
+    the planner decides on (masked neighbours -inf)."""
+    seen = []
+
+    class Checked(bt.KnobGreedy):
+        def act(self, obs):
+            view, node = self.view, int(obs["current_node"][0])
+            got = self.scores(obs)
+            ok = obs["action_mask"].astype(bool)
+            dur = view.neighbour_durations(node, view.position)[ok]
+            gain = view.belief.trace_reductions(leg_batch(view, node), view.belief_roi())[ok]
+            np.testing.assert_allclose(got[ok], gain / dur ** 0.7, rtol=1e-10)
+            assert np.all(np.isneginf(got[~ok]))
+            seen.append(node)
+            return super().act(obs)
+
+    bt.Checked = Checked
+    register("knobcheck", "bench_teachers:Checked")
+    _fly("knobcheck:power=0.7")
+    assert len(seen) >= 10
+
+
+def test_graphcover_flies_the_lawnmower_lanes_at_the_lowest_level(bt):
+    """Its lane ends are the lawnmower's, each within half a cell diagonal of a roadmap node, all at the
+    lowest altitude, and it reaches the first one."""
+    from ipp_bench.planners import view_for
+    from ipp_bench.planners.simple import CoveragePlanner
+
+    env = make_env(TASK)
+    env.reset(seed=SEED)
+    gc = make_planner("graphcover")
+    gc.reset(view_for(gc, env), SEED)
+    lawn = CoveragePlanner()
+    lawn.reset(view_for(lawn, env), SEED)
+    half_diag = env.config.grid.resolution * math.sqrt(2) / 2
+    low = env.config.graph.altitudes[0]
+    assert np.allclose(gc._pts[:, 2], low)
+    lanes = np.unique(gc._pts[:, 1])
+    want = np.unique(np.array([lawn._target, *(next(lawn._targets) for _ in range(20))])[:, 1])
+    assert lanes.size == want.size
+    assert np.all(np.abs(lanes - want) <= half_diag + 1e-9)
+    visited = []
+    _fly("graphcover", on_decision=lambda d: visited.append(int(d.obs["current_node"][0])))
+    positions = gc.view.roadmap.positions
+    assert any(np.allclose(positions[n], gc._pts[1]) for n in visited)

@@ -120,8 +120,7 @@ class LateRollout(RolloutGreedy):
     Config = LateRolloutConfig
 
     def act(self, obs):
-        budget = float(self.view.config.mission.budget_s)
-        if budget - float(self.view.remaining_s) < self.settings.switch_s:
+        if self.view.time_s < self.settings.switch_s:
             scores = greedy_scores(self.view, int(obs["current_node"][0]))
             return first_best(np.where(obs["action_mask"].astype(bool), scores, -np.inf))
         return super().act(obs)
@@ -240,7 +239,7 @@ class SweepRoi(GraphCover):
 
     def act(self, obs):
         view = self.view
-        if view.config.mission.budget_s - view.remaining_s >= self.settings.switch_s:
+        if view.time_s >= self.settings.switch_s:
             node = int(obs["current_node"][0])
             pos = view.roadmap.positions
             while self._i < len(self._pts) and np.linalg.norm(pos[node] - self._pts[self._i]) < 1e-6:
@@ -272,7 +271,7 @@ class KnobGreedy(GreedyPlanner):
         dur = view.neighbour_durations(node, view.position)
         s = greedy_scores(view, node) * dur ** (1.0 - self.settings.power)
         mask = obs["action_mask"].astype(bool)
-        if view.config.mission.budget_s - view.remaining_s >= self.settings.low_after_s:
+        if view.time_s >= self.settings.low_after_s:
             low = np.isclose(view.roadmap.positions[view.roadmap.neighbours[node], 2], view.config.graph.altitudes[0])
             mask = mask & low if (mask & low).any() else mask
         return np.where(mask, s, -np.inf)

@@ -33,6 +33,8 @@ greedy's level early and at the lawnmower's when its low sweep ends?):
   planner comes to the continuous lawnmower).
 - ``sweeproi``: greedy until ``switch_s``, then the lawnmower's lanes cut to the belief-ROI cells
   whose variance is still above ``var_frac`` of the prior's.
+- ``latesample`` (ninth session): the ``attention`` planner's argmax until ``switch_s``, then its
+  trajectory sampling (``samples``, ``plan_s``).
 
 Those that score predict with the belief covariance alone (the ROI of the decision held fixed), as
 greedy and MCTS do; none touches the truth.
@@ -44,8 +46,9 @@ greedy and MCTS do; none touches the truth.
     python benchmarks/bench_teachers.py --task ipp_bench/Grid20Train-v1 --episodes 16 --workers 2 \
         --planners greedy coverage graphcover knob:low_after_s=50 sweeproi
 
-Seeds are 10,000,000 + i. Prints the mean ROI uncertainty reduction at the report times, the
-paired difference to greedy with a 95% bootstrap interval, and the wall time per decision.
+Seeds are 10,000,000 + i (``--leaderboard-seeds``: the leaderboard's, ``ipp-bench leaderboard --seed 0``).
+Prints the mean ROI uncertainty reduction at the report times, the paired difference to greedy with a
+95% bootstrap interval, and the wall time per decision.
 """
 
 from __future__ import annotations
@@ -60,6 +63,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ipp_bench.envs import make_env
+from ipp_bench.eval.plan import episode_seeds
 from ipp_bench.eval.runner import run_episode
 from ipp_bench.planners import register
 from ipp_bench.planners.far import FarTargets, duration_graph, far_move, far_scores
@@ -67,6 +71,7 @@ from ipp_bench.planners.base import first_best
 from ipp_bench.planners.greedy import GreedyPlanner, greedy_scores
 from ipp_bench.planners.mcts import MCTSConfig, MCTSPlanner, _State
 from ipp_bench.policies.features import LookGain
+from ipp_bench.policies.planner import AttentionConfig, AttentionPlanner
 
 SEED0 = 10_000_000
 
@@ -354,6 +359,28 @@ class FarCheap(GreedyPlanner):
         return int(np.argmax(np.where(obs["action_mask"].astype(bool), s, -np.inf)))
 
 
+@dataclass(frozen=True)
+class LateSampleConfig(AttentionConfig):
+    switch_s: float = 50.0  # [s] the network's argmax until this much of the mission is flown
+    samples: int = 8
+
+
+class LateSample(AttentionPlanner):
+    """``attention`` (argmax) until ``switch_s`` seconds are flown, then its trajectory sampling."""
+
+    name = "latesample"
+    Config = LateSampleConfig
+
+    def act(self, obs):
+        if self.view.time_s < self.settings.switch_s:
+            guard = self._stall_guard(obs)
+            if guard >= 0:
+                self.guard_decisions += 1
+                return guard
+            return int(np.argmax(self._logits(obs)))
+        return super().act(obs)
+
+
 def _episode(job):
     task, spec, seed = job
     register("rollout", f"{__name__}:RolloutGreedy")
@@ -366,6 +393,7 @@ def _episode(job):
     register("lookrate", f"{__name__}:LookRate")
     register("far", f"{__name__}:FarGreedy")
     register("farcheap", f"{__name__}:FarCheap")
+    register("latesample", f"{__name__}:LateSample")
     res = run_episode(task, spec, seed, env=make_env(task))
     return spec, seed, [r["uncertainty_reduction_pct"] for r in res.report], res.decision_time_mean_s
 
@@ -383,6 +411,9 @@ def main(argv=None) -> None:
     parser.add_argument("--episodes", type=int, default=8)
     parser.add_argument("--workers", type=int, default=os.cpu_count())
     parser.add_argument("--planners", nargs="+", default=["greedy", "rollout:horizon_s=30", "rollout:horizon_s=60"])
+    parser.add_argument("--leaderboard-seeds", action="store_true",
+                        help="the leaderboard's episode seeds (ipp-bench leaderboard --seed 0) instead of the held-out "
+                             f"validation seeds {SEED0}..")
     parser.add_argument("--log", default="", help="append each finished episode to this JSON-lines file")
     parser.add_argument("--from-log", default="", help="only print the table of a --log file")
     args = parser.parse_args(argv)
@@ -393,7 +424,8 @@ def main(argv=None) -> None:
         _table(args.task, specs, done, f"from {args.from_log}")
         return
     specs = list(dict.fromkeys(["greedy", *args.planners]))
-    jobs = [(args.task, s, SEED0 + i) for i in range(args.episodes) for s in specs]
+    seeds = episode_seeds(0, args.episodes) if args.leaderboard_seeds else [SEED0 + i for i in range(args.episodes)]
+    jobs = [(args.task, s, seed) for seed in seeds for s in specs]
     t0 = time.perf_counter()
     done = []
     with ProcessPoolExecutor(args.workers) as pool:
@@ -415,7 +447,8 @@ def _table(task: str, specs: list[str], done: list, how: str) -> None:
     seeds = sorted(set.intersection(*(set(rows[s]) for s in specs)))
     ref = np.array([rows["greedy"][s] for s in seeds])
     rng = np.random.default_rng(0)
-    print(f"{task}: ROI uncertainty reduction [%], {len(seeds)} episodes (seeds {SEED0}..), {how}")
+    which = f"seeds {SEED0}.." if SEED0 in seeds else "the leaderboard's seeds"
+    print(f"{task}: ROI uncertainty reduction [%], {len(seeds)} episodes ({which}), {how}")
     print("| planner | " + " | ".join(f"{t:g} s" for t in times) + " | minus greedy [95% CI] | ms per decision |")
     print("|---|" + "---|" * (len(times) + 2))
     for spec in specs:

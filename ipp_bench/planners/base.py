@@ -49,6 +49,15 @@ def beats(a: float, b: float, rtol: float = TIE_RTOL) -> bool:
     return bool(a > b + rtol * max(abs(a), abs(b))) if np.isfinite(b) else bool(a > b)
 
 
+def stacked_leg(view: "RobotView", node: int, action: int) -> tuple | None:
+    """The read-outs of the roadmap leg from ``node`` to its neighbour number ``action`` as the mission
+    would take them, stacked into one ``(cells, W, var)`` (:func:`~ipp_bench.sensor.stack`); None where
+    the camera sees nothing on the leg."""
+    rm = view.roadmap
+    obs = view.leg_observations(rm.positions[node], rm.positions[rm.neighbours[node, action]])
+    return stack(obs) if obs else None
+
+
 def softmax(logits: np.ndarray) -> np.ndarray:
     """Probabilities ``exp(l - max l) / sum``; ``-inf`` logits get probability 0."""
     p = np.exp(logits - logits.max())
@@ -129,6 +138,11 @@ class RobotView:
 
     def belief_roi(self) -> np.ndarray:
         return self._env.mission.belief_roi()
+
+    def node_footprint(self):
+        """(N, n_cells) sparse: row i averages the cells one look from roadmap node i sees (the env's
+        node features read the belief's mean and standard deviation through it)."""
+        return self._env._footprint
 
     def static_key(self) -> tuple:
         """What the roadmap's static predictions (read-outs along legs, leg flight times) depend on beyond

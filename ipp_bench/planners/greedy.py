@@ -9,8 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..belief import LegBatch
-from ..sensor import stack
-from .base import GraphPlanner, first_best
+from .base import GraphPlanner, first_best, stacked_leg
 
 
 @dataclass(frozen=True)
@@ -42,10 +41,7 @@ def leg_batch(view, node: int) -> LegBatch | list:
     cache = per_map[1]
     batch = cache.get(node)
     if batch is None:
-        legs = []
-        for target in rm.neighbours[node]:
-            obs = view.leg_observations(rm.positions[node], rm.positions[target])
-            legs.append(stack(obs) if obs else None)
+        legs = [stacked_leg(view, node, a) for a in range(rm.k)]
         batch = cache[node] = legs if window else LegBatch(legs)
         if window and len(cache) > WINDOW_LEG_CACHE_NODES:
             cache.popitem(last=False)

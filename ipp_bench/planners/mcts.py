@@ -33,8 +33,7 @@ import numpy as np
 from ..belief import LegBatch, downdate_inplace, gain_factor, trace_reductions
 from ..config import check_integer, check_number
 from ..mission import TIME_TOL_S
-from ..sensor import stack
-from .base import GraphPlanner, softmax
+from .base import GraphPlanner, softmax, stacked_leg
 
 #: the most simulations per decision (a decision at 10^5 takes about half an hour)
 MAX_SIMULATIONS = 100_000
@@ -115,9 +114,7 @@ class MCTSPlanner(GraphPlanner):
     def _leg(self, node: int, action: int):
         key = (node, action)
         if key not in self._legs:
-            rm = self.view.roadmap
-            obs = self.view.leg_observations(rm.positions[node], rm.positions[rm.neighbours[node, action]])
-            self._legs[key] = stack(obs) if obs else None
+            self._legs[key] = stacked_leg(self.view, node, action)
         return self._legs[key]
 
     def _batch(self, node: int) -> LegBatch:

@@ -2,7 +2,9 @@
 
 Loads the checkpoint shipped in the package (``ipp_bench/policies/checkpoints/attention_v6.pt``)
 or ``checkpoint=PATH`` (an ``export.pt`` of an ``ipp-bench train`` run), and picks the neighbour
-with the highest probability (``sample=true``: draws from the policy instead, seeded per episode).
+with the highest probability (``sample=true``: draws from the policy instead, seeded per episode;
+``samples=K``: flies the first leg of the best of K flights imagined on the belief's covariance,
+CAtNIPP's test-time trajectory sampling, see :class:`AttentionConfig`).
 Needs torch (``pip install "ipp-bench[train]"``); the planner registry imports it lazily. It
 lives with the policy code (it is the policy's view as a planner), and the training code validates
 a network in training through it (:meth:`AttentionPlanner.from_net`), so that validation and the
@@ -20,11 +22,15 @@ import hashlib
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
-from ..planners.base import GraphPlanner, RobotView, softmax
+from ..belief import downdate_inplace, gain_factor
+from ..config import TIME_TOL_S
+from ..mission import fits_budget
+from ..planners.base import GraphPlanner, RobotView, beats, softmax, stacked_leg
 
 #: nodes the network attends to by default: all of them up to 30 x 30 (1800), at 128 x 128 (32 768
 #: nodes) the 4096 nearest the UAV, a disc of about 64 m radius (benchmarks/RESULTS.md, issue 20)
@@ -38,6 +44,7 @@ CONTEXT_CACHE = 256  # [-] context node sets kept (least recently used dropped),
 #: (benchmarks/RESULTS.md, issue 17, fifth session)
 STALL_LEGS = 4
 STALL_CELLS = 2.7
+MAX_SAMPLES = 256  # [-] imagined trajectories per decision, at most
 
 
 @dataclass(frozen=True)
@@ -59,8 +66,29 @@ class AttentionConfig:
     # network; stall_legs = 0: off (the network alone)
     stall_legs: int = STALL_LEGS
     stall_cells: float = STALL_CELLS  # [cells] > 0
+    # trajectory sampling at test time (CAtNIPP's, Cao et al. 2023): 0 = off (the network's argmax alone).
+    # samples = K >= 2: before each decision the planner imagines K flights of plan_s seconds on a copy of
+    # the belief's covariance (the variance does not depend on the values measured; the mean and the ROI
+    # stay as they are now), the first taking the network's argmax at every step, the others drawing from
+    # its policy, and flies the first leg of the one whose imagined ROI trace reduction is largest (the leg
+    # that crosses plan_s counts pro rata). About K x (legs in plan_s) forward passes per decision.
+    samples: int = 0
+    plan_s: float = 30.0  # [s] flight time each imagined trajectory covers, > 0
 
     def __post_init__(self) -> None:
+        try:
+            samples = int(self.samples.strip()) if isinstance(self.samples, str) else self.samples
+            plan_s = float(self.plan_s)
+        except (TypeError, ValueError):
+            samples, plan_s = -1, float("nan")
+        if (isinstance(samples, bool) or not isinstance(samples, int) or samples < 0 or samples == 1
+                or samples > MAX_SAMPLES):
+            raise ValueError(f"attention.samples = {self.samples!r} is invalid: expected 0 (no trajectory sampling) "
+                             f"or an integer from 2 to {MAX_SAMPLES}")
+        if isinstance(self.plan_s, bool) or not 0.0 < plan_s < float("inf"):
+            raise ValueError(f"attention.plan_s = {self.plan_s!r} is invalid: expected a number > 0 [s]")
+        object.__setattr__(self, "samples", samples)
+        object.__setattr__(self, "plan_s", plan_s)
         try:
             legs = int(self.stall_legs.strip()) if isinstance(self.stall_legs, str) else self.stall_legs
             cells = float(self.stall_cells)
@@ -85,6 +113,9 @@ class AttentionConfig:
         object.__setattr__(self, "context_nodes", context)
         if isinstance(self.sample, str):  # from "attention:sample=true"
             object.__setattr__(self, "sample", self.sample.strip().lower() in ("1", "true", "yes", "on"))
+        if self.sample and self.samples:
+            raise ValueError(f"attention.sample = true and attention.samples = {self.samples} exclude each other: "
+                             "sample draws the flown leg from the policy, samples flies the best imagined trajectory's")
         if not isinstance(self.threads, int) or self.threads < 0:
             try:
                 object.__setattr__(self, "threads", int(self.threads))
@@ -92,6 +123,22 @@ class AttentionConfig:
                 raise ValueError(f"attention.threads = {self.threads!r} is invalid: expected an integer >= 0") from None
             if self.threads < 0:
                 raise ValueError(f"attention.threads = {self.threads!r} is invalid: expected an integer >= 0")
+
+
+class _Imagined:
+    """What the node-feature functions read of an imagined state: the view's roadmap, camera and task, an
+    imagined belief variance, the ROI of the decision (held fixed) and white read-out noise."""
+
+    def __init__(self, view: RobotView, variance: np.ndarray, roi: np.ndarray) -> None:
+        self.config, self.roadmap, self.sensor = view.config, view.roadmap, view.sensor
+        self.belief = SimpleNamespace(variance=variance)
+        self._roi = roi
+
+    def belief_roi(self) -> np.ndarray:
+        return self._roi
+
+    def error_states(self) -> None:
+        return None
 
 
 def resolve_device(torch, device: str):
@@ -174,7 +221,12 @@ class AttentionPlanner(GraphPlanner):
         if self.net.cfg.rate_skip and self.net.cfg.skip_teacher == "far":
             view.require_dense_belief(f"attention ({self._source})", "its rate feature is the far teacher's "
                                       "score, whose far targets' look gains read the full covariance")
+        if self.settings.samples:
+            self._check_sampling(view)
         super().reset(view, seed)
+        self._legs: dict[tuple[int, int], tuple | None] = {}  # (node, action) -> the leg's read-outs, stacked
+        self._costs: dict[int, np.ndarray] = {}  # node -> flight times to its neighbours [s]
+        self.plans: list[tuple[list[int], float]] = []  # the last decision's imagined (actions, ROI reduction)
         self._contexts: OrderedDict[int, np.ndarray] = OrderedDict()  # current node -> its context nodes
         self._totals: list[float] = []  # the belief's total variance at the last stall_legs + 1 decisions
         self._escape: list[int] = []  # the stall guard's path still to fly, ending at its target ([]: the network)
@@ -220,12 +272,14 @@ class AttentionPlanner(GraphPlanner):
         """Policy over the k neighbours (masked neighbours have probability 0)."""
         return softmax(self._logits(obs))
 
-    def _logits(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+    def _logits(self, obs: dict[str, np.ndarray], source: Any = None) -> np.ndarray:
+        """The network's logits over the k neighbours (masked: -inf); ``source``: whose belief the added
+        node features read (default: the view's, the live belief)."""
         if self.net.cfg.node_dim != np.shape(obs["node_features"])[-1]:
             from .features import extend_observation  # trained with the look-gain (and rate) features
 
-            obs = extend_observation(obs, self.view, self.net.cfg.node_dim, self.net.cfg.skip_teacher,
-                                     self.net.cfg.invariant)
+            obs = extend_observation(obs, self.view if source is None else source, self.net.cfg.node_dim,
+                                     self.net.cfg.skip_teacher, self.net.cfg.invariant)
         obs = self.context(obs)
         self._check(obs)
         torch = self._torch
@@ -252,9 +306,95 @@ class AttentionPlanner(GraphPlanner):
             self.guard_decisions += 1
             return guard
         logits = self._logits(obs)
+        if self.settings.samples:
+            return self._best_imagined(obs, logits)
         if not self.settings.sample:
             return int(np.argmax(logits))
         return int(self.rng.choice(logits.size, p=softmax(logits)))
+
+    # -- trajectory sampling (AttentionConfig.samples) --------------------------------------------------
+    def _check_sampling(self, view: RobotView) -> None:
+        """Refuse, in one line at reset, what trajectory sampling cannot imagine."""
+        from .features import GAIN_NODE_DIM
+
+        view.require_dense_belief("attention:samples", "its imagined flights copy and downdate the full covariance")
+        if view.error_states() is not None:
+            raise ValueError("attention.samples cannot run on a task whose camera repeats its error (the deployment "
+                             "and its twin): the imagined flights would need the camera-error states too; use samples=0")
+        if self.net.cfg.node_dim != GAIN_NODE_DIM:
+            raise ValueError(f"attention.samples needs a checkpoint whose node inputs are the belief's alone "
+                             f"({GAIN_NODE_DIM} node features); {self._source} has {self.net.cfg.node_dim}")
+
+    def _leg(self, node: int, action: int):
+        """The read-outs of the leg from ``node`` to its neighbour ``action``, stacked (None: it sees nothing)."""
+        if (node, action) not in self._legs:
+            self._legs[node, action] = stacked_leg(self.view, node, action)
+        return self._legs[node, action]
+
+    def _node_costs(self, node: int) -> np.ndarray:
+        costs = self._costs.get(node)
+        if costs is None:
+            costs = self._costs[node] = self.view.neighbour_durations(node)
+        return costs
+
+    def imagined_state(self, obs: dict[str, np.ndarray], node: int, variance: np.ndarray, remaining_s: float,
+                       roi: np.ndarray) -> tuple[dict[str, np.ndarray], Any]:
+        """(observation, feature source) of an imagined state: the UAV at ``node`` with ``remaining_s`` of
+        budget and the belief variance ``variance``; the belief's mean (the footprint-mean column of ``obs``,
+        the environment's observation now) and the ROI ``roi`` held as they are now."""
+        from .features import BASE_NODE_DIM
+
+        view = self.view
+        base = np.asarray(obs["node_features"], dtype=np.float32)
+        if base.shape[-1] != BASE_NODE_DIM:
+            raise ValueError(f"attention.samples needs the environment's own observation ({BASE_NODE_DIM} node "
+                             f"features), not one with {base.shape[-1]}")
+        feats = base.copy()
+        feats[:, 4] = view.node_footprint() @ np.sqrt(variance)
+        mask = fits_budget(self._node_costs(node), remaining_s)
+        imagined = dict(obs) | {
+            "node_features": feats, "current_node": np.array([node], dtype=np.int64),
+            "neighbours": view.roadmap.neighbours[node].copy(), "action_mask": mask.astype(np.int8),
+            "budget": np.array([max(remaining_s, 0.0) / view.config.mission.budget_s], dtype=np.float32)}
+        return imagined, _Imagined(view, variance, roi)
+
+    def _best_imagined(self, obs: dict[str, np.ndarray], logits: np.ndarray) -> int:
+        """The first leg of the imagined trajectory with the largest ROI trace reduction (ties: the earlier
+        trajectory, the argmax one first); the trajectories are kept in :attr:`plans`."""
+        view, cfg = self.view, self.settings
+        rm = view.roadmap
+        roi = view.belief_roi()
+        cur = int(np.asarray(obs["current_node"]).reshape(-1)[0])
+        costs0 = view.neighbour_durations(cur, view.position)
+        self.plans = []
+        best, best_red = -1, -np.inf
+        for j in range(cfg.samples):
+            cov = view.belief.cov.copy()
+            node, remaining, elapsed, reduction = cur, view.remaining_s, 0.0, 0.0
+            costs, lg, path = costs0, logits, []
+            while True:
+                a = int(np.argmax(lg)) if j == 0 else int(self.rng.choice(lg.size, p=softmax(lg)))
+                path.append(a)
+                cost = float(costs[a])
+                leg = self._leg(node, a)
+                gain = 0.0
+                if leg is not None:
+                    A = gain_factor(cov, *leg)[0]
+                    gain = float(np.square(A[roi]).sum())
+                    downdate_inplace(cov, A)
+                reduction += min(1.0, (cfg.plan_s - elapsed) / cost) * gain
+                elapsed, remaining, node = elapsed + cost, remaining - cost, int(rm.neighbours[node, a])
+                if elapsed >= cfg.plan_s - TIME_TOL_S:
+                    break
+                costs = self._node_costs(node)
+                imagined, source = self.imagined_state(obs, node, np.maximum(cov.diagonal(), 0.0), remaining, roi)
+                if not imagined["action_mask"].any():
+                    break
+                lg = self._logits(imagined, source)
+            self.plans.append((path, reduction))
+            if beats(reduction, best_red):
+                best, best_red = path[0], reduction
+        return best
 
     def _stall_guard(self, obs: dict[str, np.ndarray]) -> int:
         """The stall guard's neighbour, or -1 when the network decides (see ``AttentionConfig.stall_legs``).

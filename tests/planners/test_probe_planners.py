@@ -32,7 +32,7 @@ def bt():
     sys.modules["bench_teachers"] = mod
     spec.loader.exec_module(mod)
     for name, cls in (("knob", "KnobGreedy"), ("roibeta", "RoiBetaGreedy"), ("lateroll", "LateRollout"),
-                      ("sweeproi", "SweepRoi"), ("graphcover", "GraphCover")):
+                      ("sweeproi", "SweepRoi"), ("graphcover", "GraphCover"), ("latesample", "LateSample")):
         register(name, f"bench_teachers:{cls}")
     yield mod
     # the probes are not the suite's planners: a later test's default planner list must not hold them
@@ -104,3 +104,23 @@ def test_graphcover_flies_the_lawnmower_lanes_at_the_lowest_level(bt):
     _fly("graphcover", on_decision=lambda d: visited.append(int(d.obs["current_node"][0])))
     positions = gc.view.roadmap.positions
     assert any(np.allclose(positions[n], gc._pts[1]) for n in visited)
+
+
+def test_latesample_is_the_argmax_before_its_switch_and_the_sampling_after(bt):
+    pytest.importorskip("torch")
+    assert _fly("latesample:switch_s=1000") == _fly("attention")
+    from ipp_bench.planners.base import RobotView
+
+    flights = {}
+    for spec in ("latesample:switch_s=0,samples=3", "attention:samples=3"):
+        env = make_env(TASK)
+        obs, _ = env.reset(seed=SEED)
+        planner = make_planner(spec)
+        planner.reset(RobotView(env.unwrapped), SEED)
+        flights[spec] = []
+        for _ in range(4):
+            a = planner.act(obs)
+            flights[spec].append((a, planner.plans))
+            obs, *_ = env.step(a)
+    assert all(len(plans) == 3 for _, plans in flights["attention:samples=3"])  # it imagined, every decision
+    assert flights["latesample:switch_s=0,samples=3"] == flights["attention:samples=3"]

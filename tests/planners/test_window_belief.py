@@ -10,6 +10,7 @@ from ipp_bench.belief import GPBelief, LegBatch, trace_reductions
 from ipp_bench.belief_window import WindowBelief
 from ipp_bench.planners import RobotView
 from ipp_bench.planners import greedy as G
+from ipp_bench.sensor import stack
 
 TASK = "ipp_bench/Hotspots30Eval-v2"
 
@@ -31,7 +32,7 @@ def test_the_dense_beliefs_look_gain_method_is_the_function_bit_for_bit():
     legs = []
     for target in env.roadmap.neighbours[node]:
         obs = view.leg_observations(env.roadmap.positions[node], env.roadmap.positions[target])
-        legs.append(G.stack(obs) if obs else None)
+        legs.append(stack(obs) if obs else None)
     assert view.belief.trace_reductions(legs, roi).tobytes() == expected.tobytes()  # the per-leg list, batched
 
 

@@ -321,9 +321,10 @@ class AttentionPlanner(GraphPlanner):
         if view.error_states() is not None:
             raise ValueError("attention.samples cannot run on a task whose camera repeats its error (the deployment "
                              "and its twin): the imagined flights would need the camera-error states too; use samples=0")
-        if self.net.cfg.node_dim != GAIN_NODE_DIM:
-            raise ValueError(f"attention.samples needs a checkpoint whose node inputs are the belief's alone "
-                             f"({GAIN_NODE_DIM} node features); {self._source} has {self.net.cfg.node_dim}")
+        if self.net.cfg.node_dim > GAIN_NODE_DIM:
+            raise ValueError(f"attention.samples cannot use {self._source}: its {self.net.cfg.node_dim} node inputs "
+                             "include greedy's score of the live belief, which an imagined flight does not have; "
+                             f"expected a checkpoint with at most {GAIN_NODE_DIM} (the belief's alone)")
 
     def _leg(self, node: int, action: int):
         """The read-outs of the leg from ``node`` to its neighbour ``action``, stacked (None: it sees nothing)."""

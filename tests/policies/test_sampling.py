@@ -136,3 +136,27 @@ def test_tasks_it_cannot_imagine_are_refused_at_reset_in_one_line(task, kwargs, 
     with pytest.raises(ValueError) as err:
         planner.reset(RobotView(env.unwrapped), 0)
     assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_network_on_the_five_env_features_imagines_too(tmp_path):
+    """Sampling needs node inputs read from the belief alone: the env's five (here an untrained network's)
+    as well as the look-gain ones; only the rate feature (greedy's score of the live belief) is refused."""
+    import torch
+
+    from ipp_bench.policies.checkpoint import save_checkpoint
+    from ipp_bench.policies.network import AttentionNet, NetConfig
+
+    torch.manual_seed(0)
+    path = tmp_path / "five.pt"
+    save_checkpoint(AttentionNet(NetConfig(embed_dim=32, n_heads=2, ff_dim=64)), path, meta={})
+    env, obs = _start()
+    planner = _planner(f"attention:checkpoint={path},samples=3,plan_s=20", env)
+    for _ in range(3):
+        a = planner.act(obs)
+        assert len(planner.plans) == 3 and a == max(planner.plans, key=lambda p: p[1])[0][0]
+        obs, *_ = env.step(a)
+    rate = tmp_path / "rate.pt"
+    save_checkpoint(AttentionNet(NetConfig(embed_dim=32, n_heads=2, ff_dim=64, node_dim=7, rate_skip=True)), rate, meta={})
+    with pytest.raises(ValueError, match="include greedy's score of the live belief") as err:
+        _planner(f"attention:checkpoint={rate},samples=3", env)
+    assert "\n" not in str(err.value)

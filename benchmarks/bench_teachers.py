@@ -35,6 +35,8 @@ greedy's level early and at the lawnmower's when its low sweep ends?):
   whose variance is still above ``var_frac`` of the prior's.
 - ``latesample`` (ninth session): the ``attention`` planner's argmax until ``switch_s``, then its
   trajectory sampling (``samples``, ``plan_s``).
+- ``greedysample`` (tenth session): ``greedy`` until ``switch_s``, then the same sampling; a teacher
+  for ``benchmarks/joint_warm_start.py --teacher-for``.
 
 Those that score predict with the belief covariance alone (the ROI of the decision held fixed), as
 greedy and MCTS do; none touches the truth.
@@ -381,8 +383,21 @@ class LateSample(AttentionPlanner):
         return super().act(obs)
 
 
-def _episode(job):
-    task, spec, seed = job
+class GreedySample(LateSample):
+    """``greedy`` until ``switch_s`` seconds are flown, then the ``attention`` planner's trajectory sampling
+    (a teacher for expert iteration that keeps greedy's labels early, as the shipped warm starts had)."""
+
+    name = "greedysample"
+
+    def act(self, obs):
+        if self.view.time_s < self.settings.switch_s:
+            scores = greedy_scores(self.view, int(obs["current_node"][0]))
+            return first_best(np.where(obs["action_mask"].astype(bool), scores, -np.inf))
+        return AttentionPlanner.act(self, obs)
+
+
+def register_probes() -> None:
+    """Put the probes in the planner registry (``rollout``, ``latesample``, ...), in this process."""
     register("rollout", f"{__name__}:RolloutGreedy")
     register("global", "bench_saturation:GlobalGreedy")
     register("lateroll", f"{__name__}:LateRollout")
@@ -394,6 +409,12 @@ def _episode(job):
     register("far", f"{__name__}:FarGreedy")
     register("farcheap", f"{__name__}:FarCheap")
     register("latesample", f"{__name__}:LateSample")
+    register("greedysample", f"{__name__}:GreedySample")
+
+
+def _episode(job):
+    task, spec, seed = job
+    register_probes()
     res = run_episode(task, spec, seed, env=make_env(task))
     return spec, seed, [r["uncertainty_reduction_pct"] for r in res.report], res.decision_time_mean_s
 

@@ -16,6 +16,13 @@ episodes per task on the validation seeds).
 default, ``attention_v6.pt``, is its output with ``Grid20Train-v1`` and ``Grid30Train-v1`` named twice
 each, ``--episodes 140 --round-episodes 70`` (the exact command: the checkpoint README; RESULTS,
 "sixth" and "seventh session").
+
+``--teacher-for TASK=PLANNER`` gives one task another teacher, any roadmap planner of the registry or a
+probe of ``benchmarks/bench_teachers.py``: expert iteration, the network distilled from its own search
+(issue 17, tenth session; the teacher sees the environment's observation, as in a leaderboard episode)::
+
+    python benchmarks/joint_warm_start.py --out runs/ei/a --init ipp_bench/policies/checkpoints/attention_v6.pt \
+        --teacher-for ipp_bench/Grid20Train-v1=latesample:switch_s=50 ...
 """
 
 from __future__ import annotations
@@ -28,7 +35,20 @@ import torch
 
 from ipp_bench.envs.registry import task_spec
 from ipp_bench.policies.train import TrainArgs, _validation, load_init, make_train_env, set_threads
-from ipp_bench.policies.warmstart import warm_start
+from ipp_bench.policies.warmstart import check_expert, warm_start
+
+try:  # the probes of bench_teachers.py as teachers (this script's folder is on sys.path when run)
+    from bench_teachers import register_probes
+except ImportError:  # imported from elsewhere: the registry's planners only
+    def register_probes() -> None:
+        pass
+
+
+def check_expert_specs(cfg: TrainArgs) -> None:
+    """Every teacher builds before the first episode (ValueError with the planner's message)."""
+    register_probes()
+    for name in dict.fromkeys(cfg.experts()):
+        check_expert(name)
 
 TASKS = ["ipp_bench/Grid30Train-v1", "ipp_bench/Hotspots30Train-v2", "ipp_bench/Grid15Train-v1",
          "ipp_bench/Hotspots15Train-v2", "ipp_bench/Grid20Train-v1"]
@@ -45,6 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--teacher", default=None,
                     help="the hotspot tasks' teacher: a checkpoint, or 'greedy' (greedy labels every task); "
                          "default: --init")
+    ap.add_argument("--teacher-for", nargs="+", default=[], metavar="TASK=PLANNER",
+                    help="another teacher for one task, a planner of the registry or a probe of "
+                         "benchmarks/bench_teachers.py (e.g. ipp_bench/Grid20Train-v1=latesample:switch_s=50)")
     ap.add_argument("--rounds", type=int, default=1, help="DAgger rounds after round 0")
     ap.add_argument("--tasks", nargs="+", default=TASKS, metavar="TASK",
                     help="training tasks, the first the main one; a task named twice gets twice the episodes "
@@ -76,17 +99,29 @@ def main(argv: list[str] | None = None) -> int:
             task_spec(task)
         except ValueError as err:
             ap.error(f"--tasks: {err}")
+    given = {}
+    for item in args.teacher_for:
+        task, sep, planner = item.partition("=")
+        if not sep or task not in args.tasks:
+            ap.error(f"--teacher-for {item}: expected TASK=PLANNER with TASK one of --tasks")
+        given[task] = planner
     cfg = TrainArgs(task=args.tasks[0], mix=args.tasks[1:], invariant=True, embed_dim=64, ff_dim=256, reward="metric",
                     init="" if args.init == "none" else args.init, warm_start="greedy",
-                    warm_start_for=[] if teacher == "greedy" else
-                    # the teacher is the network alone (stall_legs=0), as when attention_v4.pt was made,
-                    # before the planner's stall guard existed: with the guard its labels would differ
-                    [f"{t}=attention:checkpoint={teacher},stall_legs=0" for t in dict.fromkeys(args.tasks)
-                     if "Hotspots" in t],
+                    warm_start_for=[f"{t}={given[t]}" if t in given else
+                                    # the teacher is the network alone (stall_legs=0), as when attention_v4.pt
+                                    # was made, before the planner's stall guard existed: with the guard its
+                                    # labels would differ
+                                    f"{t}=attention:checkpoint={teacher},stall_legs=0"
+                                    for t in dict.fromkeys(args.tasks)
+                                    if t in given or ("Hotspots" in t and teacher != "greedy")],
                     bc_episodes=args.episodes, bc_rounds=args.rounds, bc_round_episodes=args.round_episodes,
                     bc_epochs=args.epochs, bc_lr=args.lr,
                     bc_temperature=0.05, gamma=0.99, batch_size=128, eval_episodes=16, val_task=VAL)
     set_threads(1)
+    try:
+        check_expert_specs(cfg)
+    except ValueError as err:
+        ap.error(str(err))
     run = Path(args.out)
     run.mkdir(parents=True, exist_ok=True)
     _, val = warm_start(cfg, run, torch.device("cpu"), lambda m: print(m, flush=True),

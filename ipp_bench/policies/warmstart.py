@@ -94,9 +94,10 @@ class _DaggerPlanner(GraphPlanner):
         self.expert.planner.reset(view, seed)
 
     def act(self, obs: dict) -> int:
-        # the observation the student is trained on
-        obs = extend_observation(obs, self.view, self.node_dim, self.teacher, self.invariant)
+        # the expert sees the environment's observation, as in a leaderboard episode (a network teacher
+        # adds its own features; trajectory sampling needs the base ones); the student is trained on its own
         a_exp, scores = self.expert(obs)
+        obs = extend_observation(obs, self.view, self.node_dim, self.teacher, self.invariant)
         self.targets.append(soft_target(a_exp, scores, len(obs["action_mask"]), self.temperature))
         a = a_exp
         if self.net is not None and self.student_rng.random() >= self.beta:

@@ -31,9 +31,7 @@ def bt():
     saved_registry, saved_module = dict(REGISTRY), sys.modules.get("bench_teachers")
     sys.modules["bench_teachers"] = mod
     spec.loader.exec_module(mod)
-    for name, cls in (("knob", "KnobGreedy"), ("roibeta", "RoiBetaGreedy"), ("lateroll", "LateRollout"),
-                      ("sweeproi", "SweepRoi"), ("graphcover", "GraphCover"), ("latesample", "LateSample")):
-        register(name, f"bench_teachers:{cls}")
+    mod.register_probes()
     yield mod
     # the probes are not the suite's planners: a later test's default planner list must not hold them
     REGISTRY.clear()
@@ -106,13 +104,14 @@ def test_graphcover_flies_the_lawnmower_lanes_at_the_lowest_level(bt):
     assert any(np.allclose(positions[n], gc._pts[1]) for n in visited)
 
 
-def test_latesample_is_the_argmax_before_its_switch_and_the_sampling_after(bt):
+@pytest.mark.parametrize("probe, before", [("latesample", "attention"), ("greedysample", "greedy")])
+def test_late_sampling_probes_are_their_first_planner_before_the_switch_and_the_sampling_after(bt, probe, before):
     pytest.importorskip("torch")
-    assert _fly("latesample:switch_s=1000") == _fly("attention")
+    assert _fly(f"{probe}:switch_s=1000") == _fly(before)
     from ipp_bench.planners.base import RobotView
 
     flights = {}
-    for spec in ("latesample:switch_s=0,samples=3", "attention:samples=3"):
+    for spec in (f"{probe}:switch_s=0,samples=3", "attention:samples=3"):
         env = make_env(TASK)
         obs, _ = env.reset(seed=SEED)
         planner = make_planner(spec)
@@ -123,4 +122,4 @@ def test_latesample_is_the_argmax_before_its_switch_and_the_sampling_after(bt):
             flights[spec].append((a, planner.plans))
             obs, *_ = env.step(a)
     assert all(len(plans) == 3 for _, plans in flights["attention:samples=3"])  # it imagined, every decision
-    assert flights["latesample:switch_s=0,samples=3"] == flights["attention:samples=3"]
+    assert flights[f"{probe}:switch_s=0,samples=3"] == flights["attention:samples=3"]

@@ -160,3 +160,28 @@ def test_a_network_on_the_five_env_features_imagines_too(tmp_path):
     with pytest.raises(ValueError, match="include greedy's score of the live belief") as err:
         _planner(f"attention:checkpoint={rate},samples=3", env)
     assert "\n" not in str(err.value)
+
+
+def test_a_sampling_teacher_labels_dagger_states_with_the_actions_it_flies_alone():
+    """As a warm start's teacher (``benchmarks/joint_warm_start.py --teacher-for``), the sampling planner
+    sees the environment's own observation, as in a leaderboard episode: with beta 1 (round 0) the
+    labels are the actions it flies alone on the same seed, and the student's states carry its own
+    six features."""
+    import torch
+
+    from ipp_bench.planners.episode import fly_episode
+    from ipp_bench.policies.features import gain_feature_wrapper
+    from ipp_bench.policies.network import NetConfig
+    from ipp_bench.policies.warmstart import BCDataset, collect_episodes, make_expert
+
+    spec, seed = "attention:samples=2,plan_s=15", 3
+    alone = []
+    fly_episode(gym.make(TASK).unwrapped, spec, seed, on_decision=lambda d: alone.append(int(d.action)))
+    data = BCDataset()
+    cfg = NetConfig(node_dim=6, invariant=True)
+    student_env = gain_feature_wrapper(gym.make(TASK), invariant=True)  # the training env's six features
+    collect_episodes(student_env, make_expert(spec), None, 1, 1.0, data, 0.99, np.random.default_rng(0), seed,
+                     torch.device("cpu"), net_config=cfg)
+    assert len(alone) > 5 and len(data) == len(alone)
+    assert [int(np.argmax(t)) for t in data.target] == data.action == alone
+    assert {a.shape[-1] for a in data.nf} == {6}

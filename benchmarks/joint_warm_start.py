@@ -21,8 +21,11 @@ each, ``--episodes 140 --round-episodes 70`` (the exact command: the checkpoint 
 probe of ``benchmarks/bench_teachers.py``: expert iteration, the network distilled from its own search
 (issue 17, tenth session; the teacher sees the environment's observation, as in a leaderboard episode)::
 
-    python benchmarks/joint_warm_start.py --out runs/ei/a --init ipp_bench/policies/checkpoints/attention_v6.pt \
-        --teacher-for ipp_bench/Grid20Train-v1=latesample:switch_s=50 ...
+    python benchmarks/joint_warm_start.py --out runs/ei/b --init ipp_bench/policies/checkpoints/attention_v6.pt \
+        --tasks ipp_bench/Grid20Train-v1 ipp_bench/Hotspots30Train-v2 ipp_bench/Grid30Train-v1 \
+        ipp_bench/Hotspots15Train-v2 ipp_bench/Grid20Train-v1 ipp_bench/Hotspots30Train-v2 ipp_bench/Grid15Train-v1 \
+        --teacher-for ipp_bench/Grid20Train-v1=latesample:switch_s=50 ipp_bench/Hotspots30Train-v2=latesample:switch_s=50 \
+        --episodes 105 --round-episodes 35   # variant B, about an hour on one core
 """
 
 from __future__ import annotations

@@ -37,7 +37,8 @@ from pathlib import Path
 import torch
 
 from ipp_bench.envs.registry import task_spec
-from ipp_bench.policies.train import TrainArgs, _validation, load_init, make_train_env, set_threads
+from ipp_bench.policies.train import (TrainArgs, _validation, check_warm_start_seeds, load_init, make_train_env,
+                                      set_threads)
 from ipp_bench.policies.warmstart import check_expert, warm_start
 
 try:  # the probes of bench_teachers.py as teachers (this script's folder is on sys.path when run)
@@ -79,6 +80,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--round-episodes", type=int, default=50, help="each DAgger round's episodes")
     ap.add_argument("--epochs", type=int, default=4, help="fitting epochs per round")
     ap.add_argument("--lr", type=float, default=1e-4, help="the fit's learning rate")
+    ap.add_argument("--seed", type=int, default=0,
+                    help="seed of the episodes (seeds SEED * 1 000 003 on), the sampling and the fit's batches; "
+                         "0 made the shipped checkpoints")
     args = ap.parse_args(argv)
     for name, value in (("--episodes", args.episodes), ("--round-episodes", args.round_episodes)):
         if value < len(args.tasks):
@@ -97,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--epochs {args.epochs}: must be 1 or more")
     if not args.lr > 0:
         ap.error(f"--lr {args.lr}: must be above 0")
+    if not 0 <= args.seed < 2**32:
+        ap.error(f"--seed {args.seed}: must be in [0, 2**32 - 1]")
     for task in args.tasks:
         try:
             task_spec(task)
@@ -119,9 +125,11 @@ def main(argv: list[str] | None = None) -> int:
                                     if t in given or ("Hotspots" in t and teacher != "greedy")],
                     bc_episodes=args.episodes, bc_rounds=args.rounds, bc_round_episodes=args.round_episodes,
                     bc_epochs=args.epochs, bc_lr=args.lr,
-                    bc_temperature=0.05, gamma=0.99, batch_size=128, eval_episodes=16, val_task=VAL)
+                    bc_temperature=0.05, gamma=0.99, batch_size=128, eval_episodes=16, val_task=VAL,
+                    seed=args.seed)
     set_threads(1)
     try:
+        check_warm_start_seeds(cfg)
         check_expert_specs(cfg)
     except ValueError as err:
         ap.error(str(err))

@@ -337,6 +337,7 @@ def _check(cfg: TrainArgs) -> None:
                              f"{cfg.net_config()} (match --embed-dim, --n-heads, --ff-dim, --gain-feature)")
     if cfg.warm_start != "none":
         check_expert(cfg.warm_start)
+        check_warm_start_seeds(cfg)
     for item in cfg.warm_start_for:
         task, sep, expert = item.partition("=")
         if not sep or task not in cfg.tasks:
@@ -617,6 +618,17 @@ def _meta(cfg: TrainArgs, state: dict, steps: int, val: dict) -> dict:
             "versions": versions(), "device": cfg.device, "threads": cfg.threads,
             "ppo_wall_s": round(state.get("ppo_wall_s", 0.0), 1),
             "warm_start_wall_s": round(state.get("bc_wall_s", 0.0), 1), **val}
+
+
+def check_warm_start_seeds(cfg: TrainArgs) -> None:
+    """The warm start's episodes (seeds ``seed * 1 000 003`` on) never reach the validation episodes
+    (``VAL_SEED0`` on): with ``--seed 10`` they would, and the validation would score training episodes."""
+    n = cfg.bc_episodes + cfg.bc_rounds * cfg.bc_round_episodes if cfg.warm_start != "none" else 0
+    s0 = cfg.seed * 1_000_003
+    if n and s0 < VAL_SEED0 + cfg.eval_episodes and VAL_SEED0 < s0 + n:
+        raise ValueError(f"--seed {cfg.seed}: the warm start's episodes (seeds {s0}..{s0 + n - 1}) would include "
+                         f"validation episodes (seeds {VAL_SEED0}..{VAL_SEED0 + cfg.eval_episodes - 1}); "
+                         "choose another seed")
 
 
 def _warm_start_seeds(cfg: TrainArgs) -> str:

@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("sb3_contrib")
 
 from ipp_bench.policies.checkpoint import load_checkpoint
-from ipp_bench.policies.train import TrainArgs, add_train_arguments, command_line
+from ipp_bench.policies.train import VAL_SEED0, TrainArgs, add_train_arguments, check_warm_start_seeds, command_line
 from ipp_bench.policies.warmstart import soft_target
 
 TINY = ["--task", "ipp_bench/Grid15-v0", "--n-envs", "1", "--n-steps", "32", "--batch-size", "32",
@@ -143,6 +143,26 @@ def test_warm_start_with_a_non_graph_planner_is_refused_before_the_run_folder(tm
         proc = _train(*TINY, "--warm-start", bad, "--total-steps", "32", "--out", str(run), check=False)
         assert proc.returncode == 2 and why in proc.stderr and "--warm-start" in proc.stderr
         assert not run.exists()
+
+
+def test_warm_start_episodes_never_reach_the_validation_seeds(tmp_path):
+    # the warm start flies seeds seed * 1 000 003 + i, the validation VAL_SEED0 + j: with --seed 10 the two meet
+    # once there are more than 30 validation episodes (10 000 030 - 10 000 000)
+    def args(seed, eval_episodes):
+        return TrainArgs(seed=seed, eval_episodes=eval_episodes, warm_start="greedy", bc_episodes=100,
+                         bc_rounds=1, bc_round_episodes=50)
+
+    assert 10 * 1_000_003 - VAL_SEED0 == 30
+    for seed, eval_episodes in ((0, 100_000), (9, 100_000), (11, 100_000), (10, 30)):
+        check_warm_start_seeds(args(seed, eval_episodes))  # disjoint: no error
+    for seed, eval_episodes in ((10, 31), (10, 16_000)):
+        with pytest.raises(ValueError, match=r"--seed 10: .*10000030\.\.10000179.*choose another seed"):
+            check_warm_start_seeds(args(seed, eval_episodes))
+    check_warm_start_seeds(TrainArgs(seed=10, eval_episodes=100, warm_start="none"))  # no warm start, no episodes
+    run = tmp_path / "run"
+    proc = _train(*TINY, "--seed", "10", "--eval-episodes", "40", "--out", str(run), check=False)
+    assert proc.returncode == 2 and "--seed 10" in proc.stderr and "Traceback" not in proc.stderr
+    assert not run.exists()
 
 
 def test_export_refuses_missing_and_wrong_files(tmp_path):

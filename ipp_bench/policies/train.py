@@ -78,7 +78,7 @@ from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save
 from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, RATE_NODE_DIM, SKIP_TEACHERS, gain_feature_wrapper
 from ipp_bench.policies.network import AttentionNet, NetConfig
 from ipp_bench.policies.vec import REWARDS, VEC_ENVS
-from ipp_bench.policies.warmstart import check_expert, warm_start
+from ipp_bench.policies.warmstart import check_expert, warm_start, warm_start_seeds
 
 VAL_SEED0 = 10_000_000  # validation episodes use seeds VAL_SEED0 + i of the validation task
 
@@ -623,10 +623,10 @@ def _meta(cfg: TrainArgs, state: dict, steps: int, val: dict) -> dict:
 def check_warm_start_seeds(cfg: TrainArgs) -> None:
     """The warm start's episodes (seeds ``seed * 1 000 003`` on) never reach the validation episodes
     (``VAL_SEED0`` on): with ``--seed 10`` they would, and the validation would score training episodes."""
-    n = cfg.bc_episodes + cfg.bc_rounds * cfg.bc_round_episodes if cfg.warm_start != "none" else 0
-    s0 = cfg.seed * 1_000_003
-    if n and s0 < VAL_SEED0 + cfg.eval_episodes and VAL_SEED0 < s0 + n:
-        raise ValueError(f"--seed {cfg.seed}: the warm start's episodes (seeds {s0}..{s0 + n - 1}) would include "
+    seeds = warm_start_seeds(cfg)
+    if seeds and seeds.start < VAL_SEED0 + cfg.eval_episodes and VAL_SEED0 < seeds.stop:
+        raise ValueError(f"--seed {cfg.seed}: the warm start's episodes (seeds {seeds.start}..{seeds.stop - 1}) "
+                         "would include "
                          f"validation episodes (seeds {VAL_SEED0}..{VAL_SEED0 + cfg.eval_episodes - 1}); "
                          "choose another seed")
 
@@ -634,12 +634,11 @@ def check_warm_start_seeds(cfg: TrainArgs) -> None:
 def _warm_start_seeds(cfg: TrainArgs) -> str:
     if cfg.warm_start == "none":
         return ""
-    n = cfg.bc_episodes + cfg.bc_rounds * cfg.bc_round_episodes
-    s0 = cfg.seed * 1_000_003
+    seeds = warm_start_seeds(cfg)
     if cfg.mix:
-        return (f"{s0}..{s0 + n - 1}, each round's episodes split over {', '.join(cfg.tasks)} in turn "
+        return (f"{seeds.start}..{seeds.stop - 1}, each round's episodes split over {', '.join(cfg.tasks)} in turn "
                 "(consecutive seeds)")
-    return f"{s0}..{s0 + n - 1} of {cfg.task}"
+    return f"{seeds.start}..{seeds.stop - 1} of {cfg.task}"
 
 
 def _write_state(run: Path, state: dict) -> None:

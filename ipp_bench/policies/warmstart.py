@@ -305,6 +305,13 @@ def _load_chunk(data: BCDataset, path: Path) -> None:
     data.ret += [float(r) for r in z["ret"]]
 
 
+def warm_start_seeds(cfg: Any) -> range:
+    """The episode seeds of a warm start (``cfg.seed * 1 000 003`` on, round 0's episodes then each
+    DAgger round's); empty without a warm start."""
+    n = cfg.bc_episodes + cfg.bc_rounds * cfg.bc_round_episodes if cfg.warm_start != "none" else 0
+    return range(cfg.seed * 1_000_003, cfg.seed * 1_000_003 + n)
+
+
 def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], None],
                make_env: Callable[..., Any], validate: Callable[[AttentionNet], dict[str, float]],
                net_config: NetConfig, init: AttentionNet | None = None) -> tuple[AttentionNet, dict[str, float]]:
@@ -337,7 +344,7 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
     rng = np.random.default_rng(cfg.seed)
     log_path = out / "bc_log.csv"
     rows: list[dict] = []
-    seed = cfg.seed * 1_000_003
+    seed = warm_start_seeds(cfg).start
     wall0 = 0.0
     first = 0
     if progress.get("rounds_done", 0) > 0:  # resume after the last completed round

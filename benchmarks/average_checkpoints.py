@@ -40,6 +40,9 @@ def main(argv: list[str] | None = None) -> int:
         net_b, _ = load_checkpoint(args.b)
     except CheckpointError as err:
         ap.error(str(err))
+    for name, path, net in (("A", args.a, net_a), ("B", args.b, net_b)):
+        if hasattr(net, "members"):
+            ap.error(f"{name} {path}: an ensemble of {len(net.members)} networks; average single networks")
     if net_a.cfg.to_dict() != net_b.cfg.to_dict():
         ap.error(f"{args.a} and {args.b} are different networks ({net_a.cfg.to_dict()} and {net_b.cfg.to_dict()})")
     sa, sb = net_a.state_dict(), net_b.state_dict()

@@ -5,6 +5,10 @@ A checkpoint is a ``torch.save`` of a plain dict (loadable with ``weights_only=T
     {"format": "ipp_bench.attention/1", "net_config": {...NetConfig...},
      "state_dict": {...AttentionNet...}, "meta": {...training config, command, task...}}
 
+An ensemble (:class:`~ipp_bench.policies.network.AttentionEnsemble`, written by
+``benchmarks/ensemble_checkpoints.py``) holds ``"members": [{...AttentionNet...}, ...]`` instead of
+``"state_dict"``, every member of the one ``net_config``; loading it gives the ensemble.
+
 A JSON file with the same stem beside it repeats ``net_config`` and ``meta`` for people. The
 suite ships one trained checkpoint, :data:`SHIPPED_CHECKPOINT`; training writes SB3 ``.zip`` files
 during a run and exports this format at the end (``export.pt`` in the run folder).
@@ -19,7 +23,7 @@ from typing import Any
 
 import torch
 
-from ipp_bench.policies.network import AttentionNet, NetConfig
+from ipp_bench.policies.network import MAX_MEMBERS, AttentionEnsemble, AttentionNet, NetConfig
 
 FORMAT = "ipp_bench.attention/1"
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
@@ -30,23 +34,38 @@ class CheckpointError(ValueError):
     """A checkpoint that is missing, unreadable or does not fit the network."""
 
 
-def save_checkpoint(net: AttentionNet, path: str | Path, meta: dict[str, Any] | None = None) -> Path:
-    """Write ``net`` (float32, CPU) to ``path`` and its description to ``path.with_suffix('.json')``."""
+def _cpu_state(net: AttentionNet) -> dict[str, torch.Tensor]:
+    return {k: v.detach().to("cpu", torch.float32).clone() for k, v in net.state_dict().items()}
+
+
+def save_checkpoint(net: AttentionNet | AttentionEnsemble, path: str | Path, meta: dict[str, Any] | None = None) -> Path:
+    """Write ``net`` (float32, CPU; an ensemble as its members) to ``path`` and its description to
+    ``path.with_suffix('.json')``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    state = {k: v.detach().to("cpu", torch.float32).clone() for k, v in net.state_dict().items()}
-    payload = {"format": FORMAT, "net_config": net.cfg.to_dict(), "state_dict": state, "meta": dict(meta or {})}
+    payload: dict[str, Any] = {"format": FORMAT, "net_config": net.cfg.to_dict()}
+    if isinstance(net, AttentionEnsemble):
+        payload["members"] = [_cpu_state(m) for m in net.members]
+        states = payload["members"]
+    else:
+        payload["state_dict"] = _cpu_state(net)
+        states = [payload["state_dict"]]
+    payload["meta"] = dict(meta or {})
     tmp = path.with_name(path.name + ".tmp")
     torch.save(payload, tmp)
     tmp.replace(path)
     info = {"format": FORMAT, "net_config": payload["net_config"], "meta": payload["meta"],
-            "parameters": int(sum(v.numel() for v in state.values()))}
+            "parameters": int(sum(v.numel() for state in states for v in state.values()))}
+    if isinstance(net, AttentionEnsemble):
+        info["members"] = len(states)
     path.with_suffix(".json").write_text(json.dumps(info, indent=2, sort_keys=True) + "\n")
     return path
 
 
-def load_checkpoint(path: str | Path | None = None, device: str | torch.device = "cpu") -> tuple[AttentionNet, dict]:
-    """Load an AttentionNet (eval mode) and its meta from ``path`` (default: the shipped one).
+def load_checkpoint(path: str | Path | None = None,
+                    device: str | torch.device = "cpu") -> tuple[AttentionNet | AttentionEnsemble, dict]:
+    """Load an AttentionNet, or the AttentionEnsemble of an ensemble checkpoint (eval mode), and its
+    meta from ``path`` (default: the shipped one).
 
     Raises:
         CheckpointError: the file is missing, is not an ipp-bench attention checkpoint, or its
@@ -73,7 +92,7 @@ def load_checkpoint(path: str | Path | None = None, device: str | torch.device =
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
         raise CheckpointError(f"checkpoint {path} has format {found!r}; expected {expected}")
-    net_config, state, meta = payload.get("net_config"), payload.get("state_dict"), payload.get("meta", {})
+    net_config, meta = payload.get("net_config"), payload.get("meta", {})
     if not isinstance(net_config, dict):
         raise CheckpointError(f"checkpoint {path}: net_config is {type(net_config).__name__}, expected a dict "
                               "of NetConfig fields")
@@ -81,18 +100,34 @@ def load_checkpoint(path: str | Path | None = None, device: str | torch.device =
         cfg = NetConfig.from_dict(net_config)
     except (KeyError, TypeError, ValueError) as err:
         raise CheckpointError(f"checkpoint {path} has an invalid net_config ({err})") from None
-    if not isinstance(state, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor)
-                                              for k, v in state.items()):
-        raise CheckpointError(f"checkpoint {path}: state_dict is {type(state).__name__}, expected a dict of "
-                              "named tensors")
     if meta is None:
         meta = {}
     if not isinstance(meta, dict):
         raise CheckpointError(f"checkpoint {path}: meta is {type(meta).__name__}, expected a dict")
+    if "members" in payload:
+        members = payload["members"]
+        if not isinstance(members, list) or not 2 <= len(members) <= MAX_MEMBERS:
+            what = f"a list of {len(members)}" if isinstance(members, list) else type(members).__name__
+            raise CheckpointError(f"checkpoint {path}: members is {what}, expected a list of 2 to {MAX_MEMBERS} "
+                                  "state dicts (an ensemble)")
+        nets = [_net_from_state(path, cfg, state, f" (member {i})") for i, state in enumerate(members)]
+        net: AttentionNet | AttentionEnsemble = AttentionEnsemble(nets)
+    else:
+        net = _net_from_state(path, cfg, payload.get("state_dict"), "")
+    net.to(device).eval()
+    return net, dict(meta)
+
+
+def _net_from_state(path: Path, cfg: NetConfig, state: Any, which: str) -> AttentionNet:
+    """The AttentionNet of ``cfg`` with ``state`` (CheckpointError if it does not fit)."""
+    if not isinstance(state, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor)
+                                              for k, v in state.items()):
+        raise CheckpointError(f"checkpoint {path}{which}: state_dict is {type(state).__name__}, expected a dict "
+                              "of named tensors")
     _check_shapes(path, cfg, state)
     bad = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
     if bad:
-        raise CheckpointError(f"checkpoint {path} has non-finite weights (NaN or inf) in {', '.join(bad[:3])}"
+        raise CheckpointError(f"checkpoint {path}{which} has non-finite weights (NaN or inf) in {', '.join(bad[:3])}"
                               + (f" and {len(bad) - 3} more tensors" if len(bad) > 3 else "")
                               + ": a diverged training run; export an earlier one")
     net = AttentionNet(cfg)
@@ -101,9 +136,8 @@ def load_checkpoint(path: str | Path | None = None, device: str | torch.device =
     except (KeyError, RuntimeError, TypeError, ValueError) as err:
         first = str(err).strip().splitlines()
         why = " ".join(line.strip() for line in first[1:3]) if len(first) > 1 else (first[0] if first else "")
-        raise CheckpointError(f"checkpoint {path} does not fit AttentionNet({cfg}): {why}") from None
-    net.to(device).eval()
-    return net, dict(meta)
+        raise CheckpointError(f"checkpoint {path}{which} does not fit AttentionNet({cfg}): {why}") from None
+    return net
 
 
 #: the most parameters a checkpoint's network may have (the shipped one has ~0.6 M)

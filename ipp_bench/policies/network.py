@@ -346,3 +346,37 @@ def obs_to_inputs(obs: dict[str, Any]) -> tuple[torch.Tensor, ...]:
     mask = obs["action_mask"] > 0.5
     budget = obs["budget"].float().reshape(-1, 1)
     return nf, pe, cur, nb, mask, budget
+
+
+#: the most networks one ensemble checkpoint may hold
+MAX_MEMBERS = 16
+
+
+class AttentionEnsemble(nn.Module):
+    """Several :class:`AttentionNet` of one :class:`NetConfig` deciding together, for a teacher or a
+    reference row: ``forward(...) -> (mean of the members' log-probabilities (B, k), mean value (B,))``.
+
+    The argmax of the mean log-probability is the choice the members' policies agree on most (their
+    geometric mean); masked neighbours stay at -inf. Each decision costs one forward pass per member.
+    An ensemble is not trained: training starts from one network (``--init`` refuses an ensemble).
+    """
+
+    def __init__(self, members: list[AttentionNet]) -> None:
+        super().__init__()
+        if not 2 <= len(members) <= MAX_MEMBERS:
+            raise ValueError(f"an ensemble holds 2 to {MAX_MEMBERS} networks, got {len(members)}")
+        configs = {m.cfg for m in members}
+        if len(configs) != 1:
+            raise ValueError(f"an ensemble's networks must share one NetConfig, got {len(configs)} different ones")
+        self.members = nn.ModuleList(members)
+        self.cfg = members[0].cfg
+
+    def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``inputs``: :meth:`AttentionNet.forward`'s (node_features, pos_encoding, current, neighbours,
+        mask, budget)."""
+        log_p, values = [], []
+        for net in self.members:
+            logits, value = net(*inputs)
+            log_p.append(torch.log_softmax(logits, dim=-1))
+            values.append(value)
+        return torch.stack(log_p).mean(0), torch.stack(values).mean(0)

@@ -386,6 +386,9 @@ def load_init(cfg: TrainArgs, device: str | torch.device = "cpu") -> AttentionNe
         net, _ = load_checkpoint(cfg.init, device=device)
     except CheckpointError as err:
         raise ValueError(f"--init: {err}") from None
+    if not isinstance(net, AttentionNet):
+        raise ValueError(f"--init {cfg.init} is an ensemble of {len(net.members)} networks (a teacher or a reference "
+                         "row); training starts from one network: pass one of its members' checkpoints")
     return net
 
 

@@ -34,6 +34,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--out {args.out}: expected a .pt file name")
 
     from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+    from ipp_bench.policies.network import AttentionEnsemble
 
     try:
         net_a, meta_a = load_checkpoint(args.a)
@@ -41,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     except CheckpointError as err:
         ap.error(str(err))
     for name, path, net in (("A", args.a, net_a), ("B", args.b, net_b)):
-        if hasattr(net, "members"):
+        if isinstance(net, AttentionEnsemble):
             ap.error(f"{name} {path}: an ensemble of {len(net.members)} networks; average single networks")
     if net_a.cfg.to_dict() != net_b.cfg.to_dict():
         ap.error(f"{args.a} and {args.b} are different networks ({net_a.cfg.to_dict()} and {net_b.cfg.to_dict()})")

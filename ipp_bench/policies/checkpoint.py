@@ -124,7 +124,7 @@ def _net_from_state(path: Path, cfg: NetConfig, state: Any, which: str) -> Atten
                                               for k, v in state.items()):
         raise CheckpointError(f"checkpoint {path}{which}: state_dict is {type(state).__name__}, expected a dict "
                               "of named tensors")
-    _check_shapes(path, cfg, state)
+    _check_shapes(path, cfg, state, which)
     bad = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
     if bad:
         raise CheckpointError(f"checkpoint {path}{which} has non-finite weights (NaN or inf) in {', '.join(bad[:3])}"
@@ -144,7 +144,7 @@ def _net_from_state(path: Path, cfg: NetConfig, state: Any, which: str) -> Atten
 MAX_PARAMETERS = 200_000_000
 
 
-def _check_shapes(path: Path, cfg: NetConfig, state: dict[str, torch.Tensor]) -> None:
+def _check_shapes(path: Path, cfg: NetConfig, state: dict[str, torch.Tensor], which: str = "") -> None:
     """Compare ``state`` with the network ``cfg`` describes, built on torch's ``meta`` device (no
     memory), so that a net_config of absurd sizes is refused before anything is allocated."""
     try:
@@ -163,7 +163,7 @@ def _check_shapes(path: Path, cfg: NetConfig, state: dict[str, torch.Tensor]) ->
         what = [f"missing {missing[:3]}"] if missing else []
         what += [f"unexpected {unexpected[:3]}"] if unexpected else []
         what += [f"{k} is {tuple(state[k].shape)}, expected {shapes[k]}" for k in wrong[:2]]
-        raise CheckpointError(f"checkpoint {path} does not fit AttentionNet({cfg}): {'; '.join(what)}")
+        raise CheckpointError(f"checkpoint {path}{which} does not fit AttentionNet({cfg}): {'; '.join(what)}")
 
 
 def check_feature_dims(cfg: NetConfig, node_dim: int, pe_dim: int, source: str = "checkpoint") -> None:

@@ -101,7 +101,7 @@ def test_the_attention_planner_flies_an_ensemble(members, tmp_path):
 @pytest.mark.parametrize("edit, message", [
     (lambda p: p.update(members=5), "members is int, expected a list of 2 to 16 state dicts"),
     (lambda p: p.update(members=p["members"][:1]), "members is a list of 1, expected"),
-    (lambda p: p["members"][1].pop(next(iter(p["members"][1]))), "missing"),
+    (lambda p: p["members"][1].pop(next(iter(p["members"][1]))), r"\(member 1\) does not fit .*missing"),
     (lambda p: p["members"].__setitem__(1, 7), r"\(member 1\): state_dict is int"),
 ])
 def test_a_malformed_ensemble_is_a_checkpoint_error(members, tmp_path, edit, message):

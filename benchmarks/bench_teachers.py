@@ -37,6 +37,15 @@ greedy's level early and at the lawnmower's when its low sweep ends?):
   trajectory sampling (``samples``, ``plan_s``).
 - ``greedysample`` (tenth session): ``greedy`` until ``switch_s``, then the same sampling; a teacher
   for ``benchmarks/joint_warm_start.py --teacher-for``.
+- ``tieroll`` (fourteenth session): the greedy ``rollout`` among greedy's near-ties only (legs within
+  ``eps`` of the best gain per second), over ``horizon_s`` or up to the mission time ``until_s``.
+- ``softroi`` (fourteenth session): greedy on the expected ROI trace reduction, each cell's variance
+  reduction weighted by ``Phi((mu - mu_th) / sigma) ** power`` (at least ``floor``) instead of the 0/1
+  belief ROI.
+
+``--env KEY=VALUE`` flies every planner on the task with a config field overridden, as ``ipp-bench
+leaderboard --env`` (fourteenth session: ``--env altitudes=[8,10,14] --env k=21``, a third flight level
+at the camera's last full-resolution altitude).
 
 Those that score predict with the belief covariance alone (the ROI of the decision held fixed), as
 greedy and MCTS do; none touches the truth.
@@ -56,6 +65,7 @@ Prints the mean ROI uncertainty reduction at the report times, the paired differ
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import time
@@ -64,13 +74,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ipp_bench.envs import make_env
+from ipp_bench.envs import make_env, parse_overrides
 from ipp_bench.eval.plan import episode_seeds
 from ipp_bench.eval.runner import run_episode
 from ipp_bench.planners import register
 from ipp_bench.planners.far import FarTargets, duration_graph, far_move, far_scores
 from ipp_bench.planners.base import first_best
-from ipp_bench.planners.greedy import GreedyPlanner, greedy_scores
+from ipp_bench.planners.greedy import GreedyPlanner, greedy_scores, leg_batch
 from ipp_bench.planners.mcts import MCTSConfig, MCTSPlanner, _State
 from ipp_bench.policies.features import LookGain
 from ipp_bench.policies.planner import AttentionConfig, AttentionPlanner
@@ -134,6 +144,40 @@ class LateRollout(RolloutGreedy):
 
 
 @dataclass(frozen=True)
+class TieRolloutConfig(RolloutConfig):
+    eps: float = 0.1  # [-] only first legs whose gain per second is within eps of the best are rolled out
+    until_s: float = 0.0  # [s] if > 0: the rollout's horizon ends at this mission time (horizon_s at least)
+
+
+class TieRollout(RolloutGreedy):
+    """The greedy rollout among greedy's near-ties only: legs within ``eps`` of the best gain per second,
+    each followed by greedy up to ``horizon_s`` (or to the mission time ``until_s``); the best total flies."""
+
+    name = "tieroll"
+    Config = TieRolloutConfig
+
+    def act(self, obs):
+        cfg = self.settings
+        horizon = max(cfg.horizon_s, cfg.until_s - self.view.time_s) if cfg.until_s > 0 else cfg.horizon_s
+        base = cfg
+        self.settings = dataclasses.replace(cfg, horizon_s=horizon)
+        try:
+            root = self._root(obs)
+            rate = root.gains[root.order] / root.costs[root.order]
+            near = root.order[rate >= (1.0 - cfg.eps) * rate[0]][: cfg.top]
+            best, best_value = int(root.order[0]), -np.inf
+            if near.size > 1:
+                for a in near:
+                    child, r, _ = self._transition(root, int(a))
+                    value = r + self._greedy_value(child)
+                    if value > best_value + 1e-12:
+                        best, best_value = int(a), value
+            return best
+        finally:
+            self.settings = base
+
+
+@dataclass(frozen=True)
 class RoiBetaConfig:
     beta: float = 1.0  # [-] the ROI the score is computed on: mean + beta sigma >= mu_th
 
@@ -147,6 +191,45 @@ class RoiBetaGreedy(GreedyPlanner):
     def roi(self) -> np.ndarray:
         b, m = self.view.belief, self.view.config.mission
         return b.mean + self.settings.beta * np.sqrt(np.maximum(b.variance, 0.0)) >= m.mu_th
+
+
+@dataclass(frozen=True)
+class SoftRoiConfig:
+    power: float = 1.0  # [-] cell weight = P(cell in the ROI) ** power under the belief's marginal
+    floor: float = 0.0  # [-] the least weight of a cell
+
+
+def soft_trace_reductions(cov: np.ndarray, batch, w: np.ndarray) -> np.ndarray:
+    """For every leg of ``batch``: sum_i w_i (P - P+)_ii, the weighted form of ``trace_reductions``."""
+    out = np.zeros(batch.size)
+    if batch.index.size == 0:
+        return out
+    HP = batch.W @ cov[batch.cells, :]
+    S = HP[:, :, batch.cells] @ batch.W.transpose(0, 2, 1)
+    idx = np.arange(S.shape[1])
+    S[:, idx, idx] += batch.var
+    out[batch.index] = np.einsum("bmr,bmr,r->b", np.linalg.solve(S, HP), HP, w)
+    return out
+
+
+class SoftRoiGreedy(GreedyPlanner):
+    """Greedy on the expected ROI trace reduction: each cell's variance reduction weighted by the belief's
+    probability that the cell is in the ROI, Phi((mu - mu_th) / sigma) (greedy: the 0/1 mask mu + sigma >= mu_th)."""
+
+    name = "softroi"
+    Config = SoftRoiConfig
+
+    def scores(self, obs) -> np.ndarray:
+        from scipy.special import ndtr
+
+        view = self.view
+        node = int(obs["current_node"][0])
+        b = view.belief
+        sd = np.sqrt(np.maximum(b.variance, 1e-12))
+        w = np.maximum(ndtr((b.mean - view.config.mission.mu_th) / sd) ** self.settings.power, self.settings.floor)
+        gains = soft_trace_reductions(b.cov, leg_batch(view, node), w)
+        s = gains / view.neighbour_durations(node, view.position)
+        return np.where(obs["action_mask"].astype(bool), s, -np.inf)
 
 
 def _lawn_ends(view, seed: int, overlap: float = 0.0) -> np.ndarray:
@@ -401,7 +484,9 @@ def register_probes() -> None:
     register("rollout", f"{__name__}:RolloutGreedy")
     register("global", "bench_saturation:GlobalGreedy")
     register("lateroll", f"{__name__}:LateRollout")
+    register("tieroll", f"{__name__}:TieRollout")
     register("roibeta", f"{__name__}:RoiBetaGreedy")
+    register("softroi", f"{__name__}:SoftRoiGreedy")
     register("graphcover", f"{__name__}:GraphCover")
     register("sweeproi", f"{__name__}:SweepRoi")
     register("knob", f"{__name__}:KnobGreedy")
@@ -413,9 +498,9 @@ def register_probes() -> None:
 
 
 def _episode(job):
-    task, spec, seed = job
+    task, spec, seed, env = job
     register_probes()
-    res = run_episode(task, spec, seed, env=make_env(task))
+    res = run_episode(task, spec, seed, env=make_env(task, **env))
     return spec, seed, [r["uncertainty_reduction_pct"] for r in res.report], res.decision_time_mean_s
 
 
@@ -435,6 +520,9 @@ def main(argv=None) -> None:
     parser.add_argument("--leaderboard-seeds", action="store_true",
                         help="the leaderboard's episode seeds (ipp-bench leaderboard --seed 0) instead of the held-out "
                              f"validation seeds {SEED0}..")
+    parser.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a task config field, as ipp-bench leaderboard --env (e.g. --env altitudes=[8,10,14] "
+                             "--env k=21: a third flight level)")
     parser.add_argument("--log", default="", help="append each finished episode to this JSON-lines file")
     parser.add_argument("--from-log", default="", help="only print the table of a --log file")
     args = parser.parse_args(argv)
@@ -445,8 +533,13 @@ def main(argv=None) -> None:
         _table(args.task, specs, done, f"from {args.from_log}")
         return
     specs = list(dict.fromkeys(["greedy", *args.planners]))
+    try:
+        env = parse_overrides(args.env)
+        make_env(args.task, **env)  # refuses an unknown task or a bad override before any episode
+    except ValueError as e:
+        parser.error(str(e))
     seeds = episode_seeds(0, args.episodes) if args.leaderboard_seeds else [SEED0 + i for i in range(args.episodes)]
-    jobs = [(args.task, s, seed) for seed in seeds for s in specs]
+    jobs = [(args.task, s, seed, env) for seed in seeds for s in specs]
     t0 = time.perf_counter()
     done = []
     with ProcessPoolExecutor(args.workers) as pool:
@@ -455,7 +548,8 @@ def main(argv=None) -> None:
             if args.log:
                 with open(args.log, "a") as f:
                     f.write(json.dumps(done[-1]) + "\n")
-    _table(args.task, specs, done, f"{time.perf_counter() - t0:.0f} s wall on {args.workers} workers")
+    _table(args.task, specs, done, f"{time.perf_counter() - t0:.0f} s wall on {args.workers} workers"
+           + (f", env overrides {env}" if env else ""))
 
 
 def _table(task: str, specs: list[str], done: list, how: str) -> None:

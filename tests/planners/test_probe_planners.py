@@ -51,7 +51,7 @@ def test_switches_never_reached_are_greedy(bt):
     """A switch later than the budget, power 1 and beta = the task's: the planner is greedy, decision by decision."""
     greedy = _fly("greedy")
     for spec in ("knob", "knob:low_after_s=1000", "roibeta:beta=1", "lateroll:switch_s=1000,top=2",
-                 "sweeproi:switch_s=1000"):
+                 "sweeproi:switch_s=1000", "tieroll:eps=0,horizon_s=20"):
         assert _fly(spec) == greedy, spec
     assert _fly("knob:power=1.2") != greedy  # the knob does move the planner
 
@@ -123,3 +123,53 @@ def test_late_sampling_probes_are_their_first_planner_before_the_switch_and_the_
             obs, *_ = env.step(a)
     assert all(len(plans) == 3 for _, plans in flights["attention:samples=3"])  # it imagined, every decision
     assert flights[f"{probe}:switch_s=0,samples=3"] == flights["attention:samples=3"]
+
+
+def test_tie_rollout_is_the_rollout_among_greedy_near_ties(bt):
+    """eps = 0 leaves greedy's choice alone (above); eps = 1 admits every leg, so with the same ``top`` and
+    horizon it is the greedy rollout, decision by decision."""
+    tie = _fly("tieroll:eps=1,top=2,horizon_s=15")
+    assert tie == _fly("rollout:top=2,horizon_s=15")
+    assert tie != _fly("greedy")  # the rollout does move it
+
+
+def test_soft_roi_score_is_the_weighted_kalman_variance_reduction(bt):
+    """softroi's score against the Kalman update written out: P+ = P - P H^T (H P H^T + R)^-1 H P per leg,
+    score = sum_i Phi((mu_i - mu_th) / sigma_i) (P - P+)_ii / flight time; with 0/1 weights the weighted
+    reduction is greedy's trace reduction."""
+    from scipy.special import ndtr
+
+    from ipp_bench.planners.base import stacked_leg
+
+    seen = []
+
+    class Checked(bt.SoftRoiGreedy):
+        def act(self, obs):
+            view, node = self.view, int(obs["current_node"][0])
+            got = self.scores(obs)
+            ok = obs["action_mask"].astype(bool)
+            P, b = view.belief.cov, view.belief
+            w = ndtr((b.mean - view.config.mission.mu_th) / np.sqrt(b.variance))
+            dur = view.neighbour_durations(node, view.position)
+            for a in np.flatnonzero(ok):
+                leg = stacked_leg(view, node, int(a))
+                if leg is None:
+                    assert got[a] == 0.0
+                    continue
+                cells, W, var = leg
+                H = np.zeros((W.shape[0], P.shape[0]))
+                H[:, cells] = W
+                post = P - P @ H.T @ np.linalg.solve(H @ P @ H.T + np.diag(var), H @ P)
+                np.testing.assert_allclose(got[a], w @ np.diag(P - post) / dur[a], rtol=1e-8, atol=1e-14)
+            assert np.all(np.isneginf(got[~ok]))
+            roi = view.belief_roi()
+            batch = leg_batch(view, node)
+            np.testing.assert_allclose(bt.soft_trace_reductions(P, batch, roi.astype(float)),
+                                       view.belief.trace_reductions(batch, roi), rtol=1e-9, atol=1e-14)
+            seen.append(node)
+            return super().act(obs)
+
+    bt.SoftChecked = Checked
+    register("softcheck", "bench_teachers:SoftChecked")
+    _fly("softcheck")
+    assert len(seen) >= 10

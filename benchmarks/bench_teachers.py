@@ -521,8 +521,8 @@ def main(argv=None) -> None:
                         help="the leaderboard's episode seeds (ipp-bench leaderboard --seed 0) instead of the held-out "
                              f"validation seeds {SEED0}..")
     parser.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a task config field, as ipp-bench leaderboard --env (e.g. --env altitudes=[8,10,14] "
-                             "--env k=21: a third flight level)")
+                        help="override a task config field, as ipp-bench leaderboard --env (e.g. "
+                             "--env altitudes=[8,10,14] --env k=21: a third flight level)")
     parser.add_argument("--log", default="", help="append each finished episode to this JSON-lines file")
     parser.add_argument("--from-log", default="", help="only print the table of a --log file")
     args = parser.parse_args(argv)

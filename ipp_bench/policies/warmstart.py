@@ -62,6 +62,15 @@ class _PlannerExpert:
 
     def __call__(self, obs: dict) -> tuple[int, np.ndarray | None]:
         """The expert's action and, where the planner exposes them, its scores per neighbour."""
+        if getattr(self.planner, "reads_truth", False):
+            # a reference planner (the oracle) may fly towards a far target rather than its scores'
+            # argmax: the label is its move, soft over its scores only where the two agree
+            action = int(self.planner.act(obs))
+            if hasattr(self.planner, "scores"):
+                scores = np.asarray(self.planner.scores(obs), dtype=np.float64)
+                if action == int(np.argmax(scores)):
+                    return action, scores
+            return action, None
         if hasattr(self.planner, "scores"):
             scores = np.asarray(self.planner.scores(obs), dtype=np.float64)
             # np.argmax, not the planners' first_best: the shipped checkpoints' warm starts were made
@@ -91,7 +100,14 @@ class _DaggerPlanner(GraphPlanner):
 
     def reset(self, view: Any, seed: int) -> None:
         super().reset(view, seed)
-        self.expert.planner.reset(view, seed)
+        expert = self.expert.planner
+        if getattr(expert, "reads_truth", False):
+            # a privileged teacher (the oracle at training time): it gets the truth's view of the same
+            # environment, the student only ever the robot's (view_for refuses any other planner)
+            from ipp_bench.planners import view_for
+
+            view = view_for(expert, view._env)
+        expert.reset(view, seed)
 
     def act(self, obs: dict) -> int:
         # the expert sees the environment's observation, as in a leaderboard episode (a network teacher

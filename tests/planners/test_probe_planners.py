@@ -47,6 +47,28 @@ def _fly(spec: str, on_decision=None):
     return [r["uncertainty_reduction_pct"] for r in res.report], res.decisions
 
 
+def _check_decisions(bt, base, spec: str, check) -> list[int]:
+    """Fly ``spec`` (a name new to the registry, then its options) as ``base`` with ``check(view, node,
+    scores, valid)`` run on every decision's scores before it acts (masked neighbours must be -inf);
+    the nodes decided at."""
+    seen = []
+
+    class Checked(base):
+        def act(self, obs):
+            node = int(obs["current_node"][0])
+            got, ok = self.scores(obs), obs["action_mask"].astype(bool)
+            check(self.view, node, got, ok)
+            assert np.all(np.isneginf(got[~ok]))
+            seen.append(node)
+            return super().act(obs)
+
+    name = spec.split(":")[0]
+    setattr(bt, f"Checked_{name}", Checked)
+    register(name, f"bench_teachers:Checked_{name}")
+    _fly(spec)
+    return seen
+
+
 def test_switches_never_reached_are_greedy(bt):
     """A switch later than the budget, power 1 and beta = the task's: the planner is greedy, decision by decision."""
     greedy = _fly("greedy")
@@ -59,23 +81,12 @@ def test_switches_never_reached_are_greedy(bt):
 def test_knob_score_is_gain_over_duration_to_the_power(bt):
     """score = greedy's gain per second x duration ** (1 - power) = gain / duration ** power, on the states
     the planner decides on (masked neighbours -inf)."""
-    seen = []
+    def check(view, node, got, ok):
+        dur = view.neighbour_durations(node, view.position)[ok]
+        gain = view.belief.trace_reductions(leg_batch(view, node), view.belief_roi())[ok]
+        np.testing.assert_allclose(got[ok], gain / dur ** 0.7, rtol=1e-10)
 
-    class Checked(bt.KnobGreedy):
-        def act(self, obs):
-            view, node = self.view, int(obs["current_node"][0])
-            got = self.scores(obs)
-            ok = obs["action_mask"].astype(bool)
-            dur = view.neighbour_durations(node, view.position)[ok]
-            gain = view.belief.trace_reductions(leg_batch(view, node), view.belief_roi())[ok]
-            np.testing.assert_allclose(got[ok], gain / dur ** 0.7, rtol=1e-10)
-            assert np.all(np.isneginf(got[~ok]))
-            seen.append(node)
-            return super().act(obs)
-
-    bt.Checked = Checked
-    register("knobcheck", "bench_teachers:Checked")
-    _fly("knobcheck:power=0.7")
+    seen = _check_decisions(bt, bt.KnobGreedy, "knobcheck:power=0.7", check)
     assert len(seen) >= 10
 
 
@@ -141,35 +152,24 @@ def test_soft_roi_score_is_the_weighted_kalman_variance_reduction(bt):
 
     from ipp_bench.planners.base import stacked_leg
 
-    seen = []
+    def check(view, node, got, ok):
+        P, b = view.belief.cov, view.belief
+        w = ndtr((b.mean - view.config.mission.mu_th) / np.sqrt(b.variance))
+        dur = view.neighbour_durations(node, view.position)
+        for a in np.flatnonzero(ok):
+            leg = stacked_leg(view, node, int(a))
+            if leg is None:
+                assert got[a] == 0.0
+                continue
+            cells, W, var = leg
+            H = np.zeros((W.shape[0], P.shape[0]))
+            H[:, cells] = W
+            post = P - P @ H.T @ np.linalg.solve(H @ P @ H.T + np.diag(var), H @ P)
+            np.testing.assert_allclose(got[a], w @ np.diag(P - post) / dur[a], rtol=1e-8, atol=1e-14)
+        roi = view.belief_roi()
+        batch = leg_batch(view, node)
+        np.testing.assert_allclose(bt.soft_trace_reductions(P, batch, roi.astype(float)),
+                                   view.belief.trace_reductions(batch, roi), rtol=1e-9, atol=1e-14)
 
-    class Checked(bt.SoftRoiGreedy):
-        def act(self, obs):
-            view, node = self.view, int(obs["current_node"][0])
-            got = self.scores(obs)
-            ok = obs["action_mask"].astype(bool)
-            P, b = view.belief.cov, view.belief
-            w = ndtr((b.mean - view.config.mission.mu_th) / np.sqrt(b.variance))
-            dur = view.neighbour_durations(node, view.position)
-            for a in np.flatnonzero(ok):
-                leg = stacked_leg(view, node, int(a))
-                if leg is None:
-                    assert got[a] == 0.0
-                    continue
-                cells, W, var = leg
-                H = np.zeros((W.shape[0], P.shape[0]))
-                H[:, cells] = W
-                post = P - P @ H.T @ np.linalg.solve(H @ P @ H.T + np.diag(var), H @ P)
-                np.testing.assert_allclose(got[a], w @ np.diag(P - post) / dur[a], rtol=1e-8, atol=1e-14)
-            assert np.all(np.isneginf(got[~ok]))
-            roi = view.belief_roi()
-            batch = leg_batch(view, node)
-            np.testing.assert_allclose(bt.soft_trace_reductions(P, batch, roi.astype(float)),
-                                       view.belief.trace_reductions(batch, roi), rtol=1e-9, atol=1e-14)
-            seen.append(node)
-            return super().act(obs)
-
-    bt.SoftChecked = Checked
-    register("softcheck", "bench_teachers:SoftChecked")
-    _fly("softcheck")
+    seen = _check_decisions(bt, bt.SoftRoiGreedy, "softcheck", check)
     assert len(seen) >= 10

@@ -39,7 +39,7 @@ import torch
 from ipp_bench.envs.registry import task_spec
 from ipp_bench.policies.train import (TrainArgs, _validation, check_warm_start_seeds, load_init, make_train_env,
                                       set_threads)
-from ipp_bench.policies.warmstart import check_expert, warm_start
+from ipp_bench.policies.warmstart import check_expert_on, warm_start
 
 try:  # the probes of bench_teachers.py as teachers (this script's folder is on sys.path when run)
     from bench_teachers import register_probes
@@ -49,10 +49,16 @@ except ImportError:  # imported from elsewhere: the registry's planners only
 
 
 def check_expert_specs(cfg: TrainArgs) -> None:
-    """Every teacher builds before the first episode (ValueError with the planner's message)."""
+    """Every teacher builds and starts an episode of its task before the first episode (ValueError with
+    the planner's message)."""
     register_probes()
-    for name in dict.fromkeys(cfg.experts()):
-        check_expert(name)
+    for i, (task, name) in enumerate(zip(cfg.tasks, cfg.experts())):
+        env = make_train_env(cfg, i)
+        try:
+            check_expert_on(name, env.unwrapped, task)
+        finally:
+            env.close()
+
 
 TASKS = ["ipp_bench/Grid30Train-v1", "ipp_bench/Hotspots30Train-v2", "ipp_bench/Grid15Train-v1",
          "ipp_bench/Hotspots15Train-v2", "ipp_bench/Grid20Train-v1"]

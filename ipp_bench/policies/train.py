@@ -78,7 +78,7 @@ from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save
 from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM, RATE_NODE_DIM, SKIP_TEACHERS, gain_feature_wrapper
 from ipp_bench.policies.network import AttentionNet, NetConfig
 from ipp_bench.policies.vec import REWARDS, VEC_ENVS
-from ipp_bench.policies.warmstart import check_expert, warm_start, warm_start_seeds
+from ipp_bench.policies.warmstart import check_expert, check_expert_on, warm_start, warm_start_seeds
 
 VAL_SEED0 = 10_000_000  # validation episodes use seeds VAL_SEED0 + i of the validation task
 
@@ -372,6 +372,8 @@ def _check(cfg: TrainArgs) -> None:
         except (ValueError, TypeError) as err:
             raise ValueError(f"--task {task} with --env {cfg.env}: {err}") from None
         rm = env.unwrapped.roadmap
+        if cfg.warm_start != "none":
+            check_expert_on(cfg.experts()[i], env.unwrapped, task)
         env.close()
         if roadmap is None:
             roadmap = rm

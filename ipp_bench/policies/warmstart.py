@@ -38,6 +38,20 @@ def check_expert(name: str) -> None:
     make_expert(name)
 
 
+def check_expert_on(name: str, env: Any, task: str) -> None:
+    """Raise ValueError (one line) unless the expert ``name`` can start an episode of ``env`` (the
+    unwrapped task environment): a planner that needs the dense belief refuses a window-belief task
+    at its reset, which comes before the run folder when checked here."""
+    from ipp_bench.planners import view_for
+
+    planner = make_expert(name).planner
+    env.reset(seed=0)
+    try:
+        planner.reset(view_for(planner, env), 0)
+    except ValueError as err:
+        raise ValueError(f"--warm-start {name} on {task}: {err}") from None
+
+
 def make_expert(name: str) -> _PlannerExpert:
     """``expert(obs) -> (action, scores)`` from the planner registry (``greedy``, ``mcts``, ...)."""
     try:

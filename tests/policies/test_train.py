@@ -329,6 +329,9 @@ def test_warm_start_for_names_the_expert_of_one_task_and_is_checked_before_the_r
         (["--warm-start-for", "ipp_bench/Grid15-v0=coverage"], "a roadmap planner"),
         (["--warm-start-for", "ipp_bench/Grid15-v0=nope"], "--warm-start 'nope' is invalid"),
         (["--warm-start", "none", "--warm-start-for", "ipp_bench/Grid15-v0=greedy"], "needs --warm-start"),
+        # a teacher that needs the dense belief, on a window-belief task: refused at its reset, before the run
+        (["--task", "ipp_bench/Hotspots128Train-v2", "--warm-start", "oracle"],
+         "--warm-start oracle on ipp_bench/Hotspots128Train-v2: planner 'oracle' cannot run on"),
     ]
     _refused_in_one_line(cases, tmp_path, capsys)
 

@@ -153,7 +153,8 @@ class TrainArgs:
     init: str = opt("", "start from the weights of this exported checkpoint (.pt, e.g. an earlier run's "
                         "warmstart/bc.pt): the warm start fine-tunes them, or PPO starts from them", NET)
     warm_start: str = opt("none", "roadmap planner to imitate before PPO, e.g. greedy (the oracle reference "
-                                     "teaches from the true ROI, the student sees the robot's view); 'none' to skip", WARM)
+                                     "teaches from the true ROI, the student sees the robot's view); 'none' to skip",
+                          WARM)
     warm_start_for: list[str] = opt([], "another expert on one training task's environments, e.g. "
                                         "ipp_bench/Hotspots30Train-v2=attention:checkpoint=PATH (repeatable; the "
                                         "other tasks use --warm-start)", WARM, metavar="TASK=PLANNER")

@@ -259,6 +259,13 @@ class RayExecutor:
 
     def imap_unordered(self, fn: Callable[[J], R], jobs: Sequence[J]) -> Iterator[tuple[J, R]]:
         ray = self._ray
+        # The jobs left when this stops early (a failed job, Ctrl-C, SIGTERM): close() follows at once,
+        # and where this executor started Ray or connected to a cluster, ray.shutdown() ends a local
+        # Ray's workers and a cluster ends the tasks of a driver that has gone. They are not cancelled
+        # with force: a forced ray.cancel races with a task that is just finishing (Ray 2.60: "Check
+        # failed ... Tried to complete task that was not pending", a C++ abort of this process with a
+        # stack dump, exit 1, its Ray agents left running). Only in a Ray the caller initialised (which
+        # stays up) are they cancelled, gently: pending ones dropped, running ones interrupted.
         refs = {self._remote.remote(fn, job): job for job in jobs}
         try:
             while refs:
@@ -273,8 +280,9 @@ class RayExecutor:
                         raise JobFailed(job, f"{WORKER_DIED} ({type(err).__name__})") from None
                     yield job, result
         finally:
-            for ref in refs:
-                ray.cancel(ref, force=True)
+            if not self._owns:
+                for ref in refs:
+                    ray.cancel(ref)
 
     def close(self, abort: bool = False) -> None:
         if self._owns and self._ray.is_initialized():

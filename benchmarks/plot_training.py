@@ -8,6 +8,14 @@ uncertainty reduction over PPO environment steps, greedy dashed, the wall time o
 second axis on top; prints the same as a markdown table.
 
     python benchmarks/plot_training.py runs/inv15 --out benchmarks/training_curve.png
+
+A run validates only every ``--eval-every`` steps; ``--validation`` takes the curve instead from
+``validate_checkpoints.py --json`` over the run's checkpoints (``step_N_steps.zip`` at step N, the
+run's ``--init`` weights at step 0; greedy from the same file), with the wall time from the run:
+
+    python benchmarks/validate_checkpoints.py START.pt runs/r/checkpoints/step_*.zip --tasks T1 T2 \
+        --episodes 64 --json runs/r/val.json
+    python benchmarks/plot_training.py runs/r --validation runs/r/val.json --out benchmarks/r.png
 """
 
 from __future__ import annotations
@@ -15,6 +23,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -61,13 +70,43 @@ def read_run(run: Path) -> tuple[list[str], list[int], dict, list[float], list[f
     return tasks, times, curves, steps, walls, {k.split("/")[-1]: v for k, v in greedy.items()}
 
 
+def read_validation(path: Path, run: Path) -> tuple[list[str], list[int], dict, dict]:
+    """(tasks, report times, curves, greedy) from ``validate_checkpoints.py --json`` over a run's checkpoints."""
+    data = json.loads(path.read_text())
+    init = json.loads((run / "config.json").read_text())["args"].get("init") or ""
+    tasks = [t.split("/")[-1] for t in data["tasks"]]
+    greedy = {t.split("/")[-1]: v for t, v in data["greedy"].items()}
+    times = sorted({int(k.rsplit("_", 1)[1].rstrip("s")) for k in next(iter(greedy.values()))
+                    if k.startswith("val/unc_red_")})
+    curves: dict = {}
+    for row in data["rows"]:
+        m = re.search(r"step_(\d+)_steps\.zip$", row["checkpoint"])
+        if m:
+            step = int(m.group(1))
+        elif init and Path(row["checkpoint"]) == Path(init):
+            step = 0
+        else:  # another checkpoint (an export of the run, say): no step on the curve
+            print(f"note: {row['checkpoint']} is neither the run's --init nor a step_N_steps.zip; left off the curve")
+            continue
+        for full, task in zip(data["tasks"], tasks):
+            for t in times:
+                curves.setdefault((task, t), []).append((step, float(row["figures"][full][f"val/unc_red_{t}s"])))
+    for pts in curves.values():
+        pts.sort()
+    return tasks, times, curves, greedy
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run", type=Path)
     parser.add_argument("--out", type=Path, default=None, help="PNG to write (default: <run>/validation.png)")
     parser.add_argument("--title", default="")
+    parser.add_argument("--validation", type=Path, default=None,
+                        help="validate_checkpoints.py --json over the run's checkpoints: the curve from it")
     args = parser.parse_args(argv)
     tasks, times, curves, steps, walls, greedy = read_run(args.run)
+    if args.validation is not None:
+        tasks, times, curves, greedy = read_validation(args.validation, args.run)
     print("| PPO steps | wall [min] | " + " | ".join(f"{task} {t} s" for task in tasks for t in times) + " |")
     print("|---|---|" + "---|" * (len(tasks) * len(times)))
     all_steps = sorted({s for c in curves.values() for s, _ in c})

@@ -106,7 +106,11 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     tasks, times, curves, steps, walls, greedy = read_run(args.run)
     if args.validation is not None:
-        tasks, times, curves, greedy = read_validation(args.validation, args.run)
+        try:
+            tasks, times, curves, greedy = read_validation(args.validation, args.run)
+        except (OSError, ValueError, KeyError, TypeError, StopIteration) as err:
+            parser.error(f"--validation {args.validation}: not the --json of validate_checkpoints.py over "
+                         f"{args.run}'s checkpoints ({type(err).__name__}: {err})")
     print("| PPO steps | wall [min] | " + " | ".join(f"{task} {t} s" for task in tasks for t in times) + " |")
     print("|---|---|" + "---|" * (len(tasks) * len(times)))
     all_steps = sorted({s for c in curves.values() for s, _ in c})

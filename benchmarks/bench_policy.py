@@ -5,12 +5,14 @@ Usage::
     python benchmarks/bench_policy.py                  # everything, a few minutes on 2 cores
     python benchmarks/bench_policy.py --skip-training  # decision times only
     python benchmarks/bench_policy.py --mcts-decisions 5
+    python benchmarks/bench_policy.py --skip-training --env 'altitudes=[8,10,14]' --env k=21  # a third level
 
 Figures:
 
 - per-decision time of the ``attention`` planner (observation -> action: the look-gain feature
   where the checkpoint uses it, and one forward pass) on Grid15Eval-v1 (450 nodes), Grid20Eval-v1
-  (800) and Grid30Eval-v1 (1800), one torch thread by default, median and p90;
+  (800) and Grid30Eval-v1 (1800), one torch thread by default, median and p90 (``--env`` overrides
+  the tasks' config as ``ipp-bench leaderboard --env`` does; the rows name the roadmap's node count);
 - the same for ``greedy`` and MCTS (the leaderboard's ``mcts:simulations=24``, a few decisions)
   at 450 and 1800 nodes in the same run, and the ratio;
 - training throughput of ``ipp-bench train``'s PPO phase (environment steps per second, rollout
@@ -28,16 +30,22 @@ import time
 
 import numpy as np
 
-TASKS = (("ipp_bench/Grid15Eval-v1", 450), ("ipp_bench/Grid20Eval-v1", 800), ("ipp_bench/Grid30Eval-v1", 1800))
+TASKS = ("ipp_bench/Grid15Eval-v1", "ipp_bench/Grid20Eval-v1", "ipp_bench/Grid30Eval-v1")
 
 
-def _decisions(planner_spec: str, task: str, n: int, seed: int = 0) -> np.ndarray:
+def _nodes(task: str, env_overrides: dict) -> int:
+    from ipp_bench.envs import make_env
+
+    return int(make_env(task, **env_overrides).unwrapped.roadmap.n_nodes)
+
+
+def _decisions(planner_spec: str, task: str, n: int, seed: int = 0, env_overrides: dict | None = None) -> np.ndarray:
     """Seconds per ``act`` call over ``n`` decisions of real episodes."""
     from ipp_bench.envs import make_env
     from ipp_bench.planners import make_planner
     from ipp_bench.planners.base import RobotView
 
-    env = make_env(task)
+    env = make_env(task, **(env_overrides or {}))
     planner = make_planner(planner_spec)
     times: list[float] = []
     ep = 0
@@ -63,22 +71,24 @@ def _row(name: str, t: np.ndarray) -> dict:
 def bench_decisions(args) -> list[dict]:
     rows = []
     ckpt = f",checkpoint={args.checkpoint}" if args.checkpoint else ""
+    env = args.env_overrides
+    tasks = [(task, _nodes(task, env)) for task in TASKS]
     for threads in args.decision_threads:
         spec = f"attention:threads={threads}{ckpt}"
-        for task, nodes in TASKS:
-            _decisions(spec, task, 20)  # warm-up
-            t = _decisions(spec, task, args.decisions)
+        for task, nodes in tasks:
+            _decisions(spec, task, 20, env_overrides=env)  # warm-up
+            t = _decisions(spec, task, args.decisions, env_overrides=env)
             rows.append(_row(f"attention, {nodes} nodes, {threads} thread(s)", t))
             print(_fmt(rows[-1]), flush=True)
-    for task, nodes in TASKS[:: len(TASKS) - 1]:
-        t = _decisions("greedy", task, args.decisions)
+    for task, nodes in tasks[:: len(tasks) - 1]:
+        t = _decisions("greedy", task, args.decisions, env_overrides=env)
         rows.append(_row(f"greedy, {nodes} nodes", t))
         print(_fmt(rows[-1]), flush=True)
     if args.mcts_decisions > 0:
         for spec in args.mcts:
-            for task, nodes in TASKS[:: len(TASKS) - 1]:
+            for task, nodes in tasks[:: len(tasks) - 1]:
                 try:
-                    t = _decisions(spec, task, args.mcts_decisions)
+                    t = _decisions(spec, task, args.mcts_decisions, env_overrides=env)
                 except (ValueError, ImportError, ModuleNotFoundError) as err:
                     print(f"{spec} not measured: {err}")
                     continue
@@ -155,8 +165,19 @@ def main() -> int:
     p.add_argument("--n-epochs", type=int, default=4, help="PPO epochs in the throughput figure")
     p.add_argument("--ppo-rollouts", type=int, default=3, help="PPO rollouts (of 640 steps) timed")
     p.add_argument("--skip-training", action="store_true")
+    p.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a field of the timed tasks' config, as ipp-bench leaderboard --env (e.g. "
+                        "--env altitudes=[8,10,14] --env k=21: a third flight level); decision times only")
     p.add_argument("--json", help="also write the figures to this file")
     args = p.parse_args()
+    from ipp_bench.envs import make_env, parse_overrides
+
+    try:
+        args.env_overrides = parse_overrides(args.env)
+        for task in TASKS:
+            make_env(task, **args.env_overrides)  # a bad override is refused before anything is timed
+    except ValueError as e:
+        p.error(str(e))
 
     from ipp_bench._threads import limit_blas_threads
 

@@ -9,6 +9,11 @@ planner's, paired over the episodes both ran [95 % bootstrap interval, the repor
 - ``Hotspots30Eval-v2``: ahead of greedy with the interval above 0 at two or more times, ahead of
   every other baseline's mean at every time; the share of the oracle's headroom per time;
 - ``Hotspots15Eval-v2``: no baseline ahead with an interval excluding 0;
+
+On the v2 tasks every other planner is a baseline except the oracle (a reference) and other weights
+of the checked planner (``attention:checkpoint=B.pt`` when ``attention:checkpoint=A.pt`` is checked,
+or the shipped ``attention``): candidates, not baselines; where one of them is ahead, a line of its
+own says so, outside the verdict.
 - a deployment task (``MuJoCo*``): ahead of CMA-ES at 50 and 100 s with the interval above 0.
 
     python benchmarks/frontier_check.py baselines/v1/results.csv baselines/v2/results.csv \\
@@ -61,6 +66,8 @@ def check(agg: Aggregate, planner: str) -> tuple[str, dict[str, bool]]:
                     for p in agg.planners if agg.episodes(task, p)}
         me = planners[planner]
         others = [p for p in sorted(planners) if p != planner]
+        family = planner.split(":")[0]
+        siblings = [p for p in others if p.split(":")[0] == family]  # other weights of the same planner
         short = task.split("/")[-1]
         lines += [f"\n### {short}: {planner} minus each planner [95 % paired interval]\n",
                   "| planner | " + " | ".join(f"{t:g} s" for t in times) + " |",
@@ -69,7 +76,7 @@ def check(agg: Aggregate, planner: str) -> tuple[str, dict[str, bool]]:
         for p in others:
             lines.append(f"| {p} | " + " | ".join(_fmt(diff[p][t]) for t in times) + " |")
         # v1: the paper's baselines; H15: every baseline (the oracle is a reference, not a baseline)
-        rivals = ([p for p in others if p != "oracle"] if "Hotspots15" in task
+        rivals = ([p for p in others if p != "oracle" and p not in siblings] if "Hotspots15" in task
                   else [p for p in others if p.split(":")[0] in PAPER])
         ahead_of_me = [(p, t) for p in rivals for t in times if diff[p][t][2] is not None and diff[p][t][2] < 0]
         if "Eval-v1" in task and not short.startswith("MuJoCo"):
@@ -82,7 +89,8 @@ def check(agg: Aggregate, planner: str) -> tuple[str, dict[str, bool]]:
         elif short.startswith("Hotspots30"):
             g = diff.get("greedy", {})
             above = [t for t in g if g[t][1] is not None and g[t][1] > 0]
-            behind = [(p, t) for p in others if p not in ("greedy", "oracle") for t in times if diff[p][t][0] <= 0]
+            behind = [(p, t) for p in others if p not in ("greedy", "oracle", *siblings) for t in times
+                      if diff[p][t][0] <= 0]
             ok = len(above) >= 2 and not behind
             verdicts[short] = ok
             lines.append(f"\nH30: ahead of greedy with the interval above 0 at {', '.join(f'{t:g}' for t in above) or 'no'}"
@@ -100,6 +108,12 @@ def check(agg: Aggregate, planner: str) -> tuple[str, dict[str, bool]]:
             ok = not ahead_of_me
             verdicts[short] = ok
             lines.append(f"\nH15: {'met' if ok else 'not met (' + '; '.join(f'{p} at {t:g} s' for p, t in ahead_of_me) + ')'}")
+        if siblings and short.startswith(("Hotspots30", "Hotspots15")):
+            key = 0 if short.startswith("Hotspots30") else 2  # H30: a mean ahead; H15: an interval below 0
+            sib = [(p, t) for p in siblings for t in times
+                   if diff[p][t][key] is not None and (diff[p][t][key] <= 0 if key == 0 else diff[p][t][key] < 0)]
+            lines.append(f"other weights of {family} ahead (candidates, not baselines; not in the verdict): "
+                         + (", ".join(f"{p} at {t:g} s" for p, t in sib) or "none"))
         elif short.startswith("MuJoCo"):
             cm = next((p for p in others if p.startswith("cmaes")), None)
             if cm is not None:

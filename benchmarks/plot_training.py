@@ -16,6 +16,9 @@ run's ``--init`` weights at step 0; greedy from the same file), with the wall ti
     python benchmarks/validate_checkpoints.py START.pt runs/r/checkpoints/step_*.zip --tasks T1 T2 \
         --episodes 64 --json runs/r/val.json
     python benchmarks/plot_training.py runs/r --validation runs/r/val.json --out benchmarks/r.png
+
+Several ``--validation`` files (validations of the same run made at different times, say) are read
+as one curve; they must hold the same tasks, episode count and greedy figures (the same seeds).
 """
 
 from __future__ import annotations
@@ -70,9 +73,15 @@ def read_run(run: Path) -> tuple[list[str], list[int], dict, list[float], list[f
     return tasks, times, curves, steps, walls, {k.split("/")[-1]: v for k, v in greedy.items()}
 
 
-def read_validation(path: Path, run: Path) -> tuple[list[str], list[int], dict, dict]:
+def read_validation(paths: list[Path], run: Path) -> tuple[list[str], list[int], dict, dict]:
     """(tasks, report times, curves, greedy) from ``validate_checkpoints.py --json`` over a run's checkpoints."""
-    data = json.loads(path.read_text())
+    data = json.loads(paths[0].read_text())
+    for path in paths[1:]:  # more validations of the same run: same tasks, episodes and greedy figures
+        more = json.loads(path.read_text())
+        for key in ("tasks", "episodes", "greedy"):
+            if more[key] != data[key]:
+                raise ValueError(f"its {key} differ from {paths[0]}'s: not validations on the same episodes")
+        data["rows"] = data["rows"] + more["rows"]
     init = json.loads((run / "config.json").read_text())["args"].get("init") or ""
     tasks = [t.split("/")[-1] for t in data["tasks"]]
     greedy = {t.split("/")[-1]: v for t, v in data["greedy"].items()}
@@ -101,15 +110,17 @@ def main(argv=None) -> None:
     parser.add_argument("run", type=Path)
     parser.add_argument("--out", type=Path, default=None, help="PNG to write (default: <run>/validation.png)")
     parser.add_argument("--title", default="")
-    parser.add_argument("--validation", type=Path, default=None,
-                        help="validate_checkpoints.py --json over the run's checkpoints: the curve from it")
+    parser.add_argument("--validation", type=Path, nargs="+", default=None,
+                        help="validate_checkpoints.py --json over the run's checkpoints (one or more files of "
+                             "the same tasks and episodes): the curve from them")
     args = parser.parse_args(argv)
     tasks, times, curves, steps, walls, greedy = read_run(args.run)
     if args.validation is not None:
         try:
             tasks, times, curves, greedy = read_validation(args.validation, args.run)
         except (OSError, ValueError, KeyError, TypeError, StopIteration) as err:
-            parser.error(f"--validation {args.validation}: not the --json of validate_checkpoints.py over "
+            names = " ".join(str(p) for p in args.validation)
+            parser.error(f"--validation {names}: not the --json of validate_checkpoints.py over "
                          f"{args.run}'s checkpoints ({type(err).__name__}: {err})")
     print("| PPO steps | wall [min] | " + " | ".join(f"{task} {t} s" for task in tasks for t in times) + " |")
     print("|---|---|" + "---|" * (len(tasks) * len(times)))

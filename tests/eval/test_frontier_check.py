@@ -105,3 +105,26 @@ def test_a_file_that_is_no_results_csv_is_one_line(fc, tmp_path, capsys):
     msg = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.value.code == 2 and f"{path}: results.csv has columns" in msg and "expected" in msg
     assert "Traceback" not in msg
+
+
+def test_other_weights_of_the_checked_planner_are_named_but_are_not_baselines(fc, tmp_path):
+    h30, h15 = "ipp_bench/Hotspots30Eval-v2", "ipp_bench/Hotspots15Eval-v2"
+    me, sibling = "attention:checkpoint=a.pt", "attention:checkpoint=b.pt"
+    path = _write(tmp_path / "r.csv", {
+        (h30, "greedy"): _base,
+        (h30, me): lambda t, s: _base(t, s) + 4.0 + (1.0 if s % 2 else -1.0),
+        (h30, sibling): lambda t, s: _base(t, s) + (5.0 if t == 200.0 else 0.0),  # mean ahead at 200 s
+        (h30, "attention"): lambda t, s: _base(t, s) - 1.0,
+        (h15, "greedy"): _base,
+        (h15, me): _base,
+        (h15, sibling): lambda t, s: _base(t, s) + 2.0,  # ahead by an interval at every time
+    })
+    text, verdicts = fc.check(fc.load([path]), me)
+    assert verdicts == {"Hotspots15Eval-v2": True, "Hotspots30Eval-v2": True}
+    assert "behind another baseline's mean: none" in text
+    # H30 (the last task): only the time where its mean is ahead; the shipped `attention`, behind, is not named
+    assert text.splitlines()[-1].endswith(f"not in the verdict): {sibling} at 200 s")
+    assert f"not in the verdict): {', '.join(f'{sibling} at {t:g} s' for t in TIMES)}" in text  # H15
+    # a baseline of another family ahead still decides: greedy's mean above at 200 s in H15 by an interval
+    path = _write(tmp_path / "r2.csv", {(h15, "greedy"): lambda t, s: _base(t, s) + 2.0, (h15, me): _base})
+    assert fc.check(fc.load([path]), me)[1] == {"Hotspots15Eval-v2": False}

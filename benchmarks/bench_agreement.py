@@ -6,6 +6,8 @@ neighbour is greedy's argmax in the same state, and where it is one of greedy's 
 
     python benchmarks/bench_agreement.py --planner attention:checkpoint=PATH --episodes 4 \\
         --tasks Grid15Eval-v1 Grid30Eval-v1 Hotspots30Eval-v2
+    python benchmarks/bench_agreement.py --planner attention:checkpoint=PATH --episodes 20 \
+        --env 'altitudes=[8,10,14]' --env k=21      # the tasks with a third flight level
 """
 
 from __future__ import annotations
@@ -14,14 +16,14 @@ import argparse
 
 import numpy as np
 
-from ipp_bench.envs import make_env
+from ipp_bench.envs import make_env, parse_overrides
 from ipp_bench.eval.plan import episode_seeds, resolve_task
 from ipp_bench.planners import make_planner
 from ipp_bench.planners.base import RobotView
 
 
-def agreement(task: str, spec: str, seeds: list[int]) -> tuple[int, float, float]:
-    env = make_env(task)
+def agreement(task: str, spec: str, seeds: list[int], env_overrides: dict | None = None) -> tuple[int, float, float]:
+    env = make_env(task, **(env_overrides or {}))
     same = top2 = n = 0
     for seed in seeds:
         obs, _ = env.reset(seed=seed)
@@ -48,13 +50,25 @@ def main(argv=None) -> None:
     parser.add_argument("--tasks", nargs="+", default=["Grid15Eval-v1", "Grid20Eval-v1", "Grid30Eval-v1",
                                                        "Hotspots15Eval-v2", "Hotspots30Eval-v2"])
     parser.add_argument("--episodes", type=int, default=4, help="the first leaderboard seeds (seed 0)")
+    parser.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a task config field, as ipp-bench leaderboard --env (e.g. "
+                             "--env altitudes=[8,10,14] --env k=21: a third flight level)")
     args = parser.parse_args(argv)
+    try:
+        env = parse_overrides(args.env)
+        tasks = [resolve_task(task) for task in args.tasks]
+        for task in tasks:
+            make_env(task, **env)  # an unknown task or a bad override is refused before any episode
+        make_planner(args.planner)
+    except ValueError as e:
+        parser.error(str(e))
     seeds = episode_seeds(0, args.episodes)
-    print(f"{args.planner}: decisions equal to greedy's choice in the same state, {args.episodes} leaderboard episodes")
+    print(f"{args.planner}: decisions equal to greedy's choice in the same state, {args.episodes} leaderboard episodes"
+          + (f", env overrides {env}" if env else ""))
     print("| task | decisions | greedy's best | one of greedy's two best |")
     print("|---|---|---|---|")
-    for task in args.tasks:
-        n, same, top2 = agreement(resolve_task(task), args.planner, seeds)
+    for task, full in zip(args.tasks, tasks):
+        n, same, top2 = agreement(full, args.planner, seeds, env)
         print(f"| {task} | {n} | {100 * same:.0f} % | {100 * top2:.0f} % |", flush=True)
 
 

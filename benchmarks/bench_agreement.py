@@ -6,7 +6,7 @@ neighbour is greedy's argmax in the same state, and where it is one of greedy's 
 
     python benchmarks/bench_agreement.py --planner attention:checkpoint=PATH --episodes 4 \\
         --tasks Grid15Eval-v1 Grid30Eval-v1 Hotspots30Eval-v2
-    python benchmarks/bench_agreement.py --planner attention:checkpoint=PATH --episodes 20 \
+    python benchmarks/bench_agreement.py --planner attention:checkpoint=PATH --episodes 20 \\
         --env 'altitudes=[8,10,14]' --env k=21      # the tasks with a third flight level
 """
 

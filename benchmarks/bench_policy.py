@@ -33,12 +33,6 @@ import numpy as np
 TASKS = ("ipp_bench/Grid15Eval-v1", "ipp_bench/Grid20Eval-v1", "ipp_bench/Grid30Eval-v1")
 
 
-def _nodes(task: str, env_overrides: dict) -> int:
-    from ipp_bench.envs import make_env
-
-    return int(make_env(task, **env_overrides).unwrapped.roadmap.n_nodes)
-
-
 def _decisions(planner_spec: str, task: str, n: int, seed: int = 0, env_overrides: dict | None = None) -> np.ndarray:
     """Seconds per ``act`` call over ``n`` decisions of real episodes."""
     from ipp_bench.envs import make_env
@@ -71,8 +65,7 @@ def _row(name: str, t: np.ndarray) -> dict:
 def bench_decisions(args) -> list[dict]:
     rows = []
     ckpt = f",checkpoint={args.checkpoint}" if args.checkpoint else ""
-    env = args.env_overrides
-    tasks = [(task, _nodes(task, env)) for task in TASKS]
+    env, tasks = args.env_overrides, args.tasks
     for threads in args.decision_threads:
         spec = f"attention:threads={threads}{ckpt}"
         for task, nodes in tasks:
@@ -174,8 +167,8 @@ def main() -> int:
 
     try:
         args.env_overrides = parse_overrides(args.env)
-        for task in TASKS:
-            make_env(task, **args.env_overrides)  # a bad override is refused before anything is timed
+        # (task, its roadmap's node count); a bad override is refused here, before anything is timed
+        args.tasks = [(task, int(make_env(task, **args.env_overrides).unwrapped.roadmap.n_nodes)) for task in TASKS]
     except ValueError as e:
         p.error(str(e))
 

@@ -128,6 +128,9 @@ class TrainArgs:
                                "before it, paper eq. 9); metric: the change of the leaderboard's metric (mean ROI "
                                "uncertainty reduction over the report times, policies.vec.MetricReward)", PPO,
                       choices=REWARDS)
+    reward_last: float = opt(1.0, "with --reward metric: the weight of the last report time within the budget "
+                                  "against 1 for each earlier one (1 = the leaderboard's mean; 3 = the end of the "
+                                  "mission counts three times; in (0, 100])", PPO)
     gae_lambda: float = opt(0.0, "GAE lambda (0 = the paper's one-step TD advantage)", PPO)
     clip_range: float = opt(0.2, "PPO clip", PPO)
     ent_coef: float = opt(0.0, "entropy bonus", PPO)
@@ -280,7 +283,7 @@ _NUMBER_RANGES: dict[str, tuple[float | None, float | None, bool, bool]] = {  # 
     "gae_lambda": (0, 1, False, False), "clip_range": (0, None, True, False), "ent_coef": (0, None, False, False),
     "vf_coef": (0, None, False, False), "max_grad_norm": (0, None, True, False),
     "target_kl": (0, None, False, False), "bc_temperature": (0, None, False, False),
-    "rate_skip_init": (0, None, True, False),
+    "rate_skip_init": (0, None, True, False), "reward_last": (0, 100, True, False),
 }
 
 
@@ -325,6 +328,9 @@ def _check(cfg: TrainArgs) -> None:
         check_integer(_flag(name), getattr(cfg, name), low, high)
     for name, (low, high, low_open, high_open) in _NUMBER_RANGES.items():
         check_number(_flag(name), getattr(cfg, name), low, high, low_open=low_open, high_open=high_open)
+    if cfg.reward_last != 1.0 and cfg.reward != "metric":
+        raise ValueError(f"--reward-last {cfg.reward_last:g} weighs the metric reward's report times: it needs "
+                         f"--reward metric (given --reward {cfg.reward})")
     if cfg.vec_env not in VEC_ENVS:
         raise ValueError(f"--vec-env {cfg.vec_env!r} is invalid: expected one of {', '.join(VEC_ENVS)}")
     if cfg.device not in ("auto", "cpu") and not cfg.device.startswith("cuda"):
@@ -425,7 +431,7 @@ def make_train_env(cfg: TrainArgs, index: int = 0):
     if cfg.reward == "metric":
         from ipp_bench.policies.vec import MetricReward
 
-        env = MetricReward(env)
+        env = MetricReward(env, last_weight=cfg.reward_last)
     if cfg.invariant:
         return gain_feature_wrapper(env, invariant=True)
     if cfg.rate_skip:

@@ -47,12 +47,19 @@ def roadmap_pos_encoding(env: gym.Env) -> np.ndarray:
 REWARDS = ("paper", "metric")
 
 
-def report_value(mission: Any) -> float:
+def report_weights(mission: Any, last_weight: float = 1.0) -> list[float]:
+    """One weight per report time within the budget: 1 each, ``last_weight`` for the last."""
+    n = len(mission.config.mission.report_times_in_budget)
+    return [1.0] * (n - 1) + [float(last_weight)] if n else []
+
+
+def report_value(mission: Any, last_weight: float = 1.0) -> float:
     """Sum over the report times (within the budget) of the ROI uncertainty reduction [%] as of that
     time, counting those not reached yet at the latest value: what the episode's metric would be if
-    nothing more were measured."""
-    return float(sum(mission.metrics_at(t)["uncertainty_reduction_pct"]
-                     for t in mission.config.mission.report_times_in_budget))
+    nothing more were measured; the last report time weighted ``last_weight`` (1: the plain sum)."""
+    times = mission.config.mission.report_times_in_budget
+    return float(sum(w * mission.metrics_at(t)["uncertainty_reduction_pct"]
+                     for w, t in zip(report_weights(mission, last_weight), times)))
 
 
 class MetricReward(gym.Wrapper):
@@ -64,23 +71,30 @@ class MetricReward(gym.Wrapper):
     The paper's reward (the env's own: the step's reduction of the belief-ROI trace relative to the
     trace before it) pays a late relative reduction as much as an early one of the same ratio, so a
     policy trained on it may trade the early report times for the late ones.
+
+    ``last_weight`` w (``ipp-bench train --reward-last``): the last report time counts w times, the
+    others once, and the scale is 10 x their weights' sum, so the rewards sum to the weighted mean /
+    10 (w = 1: the leaderboard's metric).
     """
 
-    def __init__(self, env: gym.Env) -> None:
+    def __init__(self, env: gym.Env, last_weight: float = 1.0) -> None:
         super().__init__(env)
+        if not 0.0 < float(last_weight) < float("inf"):
+            raise ValueError(f"MetricReward last_weight = {last_weight!r} is invalid: expected a number > 0")
+        self.last_weight = float(last_weight)
         self._value = 0.0
         self._scale = 1.0
 
     def reset(self, **kwargs: Any):
         obs, info = self.env.reset(**kwargs)
         mission = self.env.unwrapped.mission
-        self._value = report_value(mission)
-        self._scale = 10.0 * max(len(mission.config.mission.report_times_in_budget), 1)
+        self._value = report_value(mission, self.last_weight)
+        self._scale = 10.0 * (sum(report_weights(mission, self.last_weight)) or 1.0)
         return obs, info
 
     def step(self, action: Any):
         obs, _, terminated, truncated, info = self.env.step(action)
-        value = report_value(self.env.unwrapped.mission)
+        value = report_value(self.env.unwrapped.mission, self.last_weight)
         reward, self._value = (value - self._value) / self._scale, value
         return obs, reward, terminated, truncated, info
 

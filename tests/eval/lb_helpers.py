@@ -2,9 +2,28 @@
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 from ipp_bench.eval.leaderboard import run_leaderboard
 from ipp_bench.eval.plan import make_plan
 from ipp_bench.eval.results import RESULTS_CSV, TIMING_COLUMNS, read_results
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+def benchmark_script(name: str):
+    """``benchmarks/<name>.py`` imported as a module (the test skips in an installed copy without it)."""
+    import pytest
+
+    path = BENCHMARKS / f"{name}.py"
+    if not path.is_file():
+        pytest.skip("benchmarks/ is not beside the package (an installed copy, not the repository)")
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
 
 TASKS = ("ipp_bench/Grid15Eval-v1", "ipp_bench/Grid20Eval-v1")
 PLANNERS = ("random", "coverage", "greedy", "mcts:simulations=3")

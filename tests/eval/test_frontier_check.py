@@ -3,26 +3,20 @@
 from __future__ import annotations
 
 import re
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
+from lb_helpers import benchmark_script
 
 from ipp_bench.eval.results import COLUMNS, format_header, format_rows
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "frontier_check.py"
 TIMES = (50.0, 100.0, 150.0, 200.0)
 
 
 @pytest.fixture(scope="module")
 def fc():
-    if not SCRIPT.is_file():
-        pytest.skip("benchmarks/ is not beside the package (an installed copy, not the repository)")
-    spec = importlib.util.spec_from_file_location("frontier_check", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return benchmark_script("frontier_check")
 
 
 def _write(path: Path, rows: dict) -> Path:

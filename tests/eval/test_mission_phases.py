@@ -3,28 +3,20 @@ report, and its hand-over against the planners it hands between."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from lb_helpers import benchmark_script
 
 from ipp_bench.envs import make_env
 from ipp_bench.eval.plan import episode_seeds
 from ipp_bench.planners.episode import fly_episode
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_mission_phases.py"
 TASK = "ipp_bench/Grid15Eval-v1"
 
 
 @pytest.fixture(scope="module")
 def mp():
-    if not SCRIPT.is_file():
-        pytest.skip("benchmarks/ is not beside the package (an installed copy, not the repository)")
-    spec = importlib.util.spec_from_file_location("bench_mission_phases", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return benchmark_script("bench_mission_phases")
 
 
 def test_window_gains_add_up_to_the_reports(mp):

@@ -274,6 +274,10 @@ def test_bad_numbers_and_folders_are_one_line_before_the_run_folder(tmp_path, ca
         (["--target-kl", "-1"], "--target-kl = -1.0 is invalid"),
         (["--n-envs", "100000"], "--n-envs = 100000 is invalid: expected an integer in [1, 256]"),
         (["--rate-skip", "--rate-skip-init", "nan"], "--rate-skip-init = nan is invalid"),
+        (["--reward", "metric", "--reward-last", "0"], "--reward-last = 0.0 is invalid: expected a finite number in (0, 100]"),
+        (["--reward", "metric", "--reward-last", "101"], "--reward-last = 101.0 is invalid"),
+        (["--reward", "paper", "--reward-last", "3"], "--reward-last 3 weighs the metric reward's report times: it "
+                                                      "needs --reward metric (given --reward paper)"),
     ]
     _refused_in_one_line(cases, tmp_path, capsys)
     import os

@@ -8,6 +8,8 @@ flight altitude; then the budget left unflown at the end [s]. Means over the epi
 ``--then SPEC --switch-s T`` adds, for each planner P, the row "P, then SPEC from T s": P decides
 until mission time T, SPEC from there on, on the same episodes. Its last windows against P's own
 say whether SPEC does better than P from the states P reached (the late mission's decisions alone).
+``--avoid-altitude Z`` keeps SPEC off the neighbours at altitude Z after the hand-over (where any
+other neighbour is affordable): with SPEC = P, whether P's own looks from Z are what costs it.
 
     python benchmarks/bench_mission_phases.py --tasks Hotspots30Eval-v2 --episodes 20 \\
         --env 'altitudes=[8,10,14]' --env k=21 \\
@@ -33,23 +35,32 @@ class Handover:
 
     kind = "graph"
 
-    def __init__(self, first: str, then: str, switch_s: float, env) -> None:
-        self.first, self.then, self.switch_s, self.env = make_planner(first), make_planner(then), switch_s, env
+    def __init__(self, first: str, then: str, switch_s: float, env, avoid_z: float | None = None) -> None:
+        self.first, self.switch_s, self.env, self.avoid_z = make_planner(first), switch_s, env, avoid_z
+        self.then = self.first if then == first else make_planner(then)  # the same planner: one instance
         for spec, p in ((first, self.first), (then, self.then)):
             if p.kind != "graph":
                 raise ValueError(f"--then: {spec!r} is a {p.kind} planner; a hand-over needs two roadmap planners")
         self.name = f"{first}, then {then} from {switch_s:g} s"
 
     def reset(self, view, seed: int) -> None:
-        for p in (self.first, self.then):
+        for p in {id(self.first): self.first, id(self.then): self.then}.values():
             p.reset(view_for(p, self.env), seed)
 
     def act(self, obs):
         late = self.env.mission.time_s >= self.switch_s - TIME_TOL_S
-        return (self.then if late else self.first).act(obs)
+        if not late:
+            return self.first.act(obs)
+        if self.avoid_z is not None:
+            z = self.env.roadmap.positions[np.asarray(obs["neighbours"]), 2]
+            mask = np.asarray(obs["action_mask"]).astype(bool) & ~np.isclose(z, self.avoid_z)
+            if mask.any():
+                obs = dict(obs) | {"action_mask": mask.astype(np.asarray(obs["action_mask"]).dtype)}
+        return self.then.act(obs)
 
 
-def phases(task: str, spec: str, seeds: list[int], overrides: dict, then: str = "", switch_s: float = 0.0) -> dict:
+def phases(task: str, spec: str, seeds: list[int], overrides: dict, then: str = "", switch_s: float = 0.0,
+           avoid_z: float | None = None) -> dict:
     """Per-window means of one planner on one task (see the module docstring)."""
     env = make_env(task, **overrides)
     times = list(env.unwrapped.config.mission.report_times_in_budget)
@@ -60,7 +71,7 @@ def phases(task: str, spec: str, seeds: list[int], overrides: dict, then: str = 
     at_level = np.zeros((w, len(levels)))
     unflown, per_episode = [], []
     for seed in seeds:
-        planner = Handover(spec, then, switch_s, env.unwrapped) if then else spec
+        planner = Handover(spec, then, switch_s, env.unwrapped, avoid_z) if then else spec
         ep = fly_episode(env.unwrapped, planner, seed)
         mission = env.unwrapped.mission
         red = [0.0, *(r["uncertainty_reduction_pct"] for r in ep.report)]
@@ -101,11 +112,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--then", action="append", default=[], metavar="SPEC",
                    help="also fly each planner handing over to SPEC at --switch-s (repeatable)")
     p.add_argument("--switch-s", type=float, default=150.0, help="mission time of the hand-over [s] (default 150)")
+    p.add_argument("--avoid-altitude", type=float, default=None, metavar="Z",
+                   help="after the hand-over, SPEC does not fly to neighbours at altitude Z [m] (if others fit)")
     a = p.parse_args(argv)
     if a.episodes < 1:
         p.error(f"--episodes {a.episodes}: expected at least 1")
     if not a.switch_s > 0:
         p.error(f"--switch-s {a.switch_s}: expected a mission time > 0 s")
+    if a.avoid_altitude is not None and not a.then:
+        p.error("--avoid-altitude applies to the planner after the hand-over: it needs --then SPEC")
     try:
         overrides = parse_overrides(a.env)
         tasks = [resolve_task(t) for t in a.tasks]
@@ -122,9 +137,10 @@ def main(argv: list[str] | None = None) -> int:
     for task in tasks:
         print(f"\n### {task}, {a.episodes} episodes" + (f" ({' '.join(a.env)})" if a.env else ""))
         own = {spec: phases(task, spec, seeds, overrides) for spec in a.planners}
-        handovers = [(spec, f"{spec}, then {then} from {a.switch_s:g} s",
-                      phases(task, spec, seeds, overrides, then, a.switch_s))
-                     for then in a.then for spec in a.planners if spec != then]
+        avoid = "" if a.avoid_altitude is None else f", not at {a.avoid_altitude:g} m"
+        handovers = [(spec, f"{spec}, then {then} from {a.switch_s:g} s{avoid}",
+                      phases(task, spec, seeds, overrides, then, a.switch_s, a.avoid_altitude))
+                     for then in a.then for spec in a.planners if spec != then or a.avoid_altitude is not None]
         rows = [*own.items(), *((label, r) for _, label, r in handovers)]
         first = rows[0][1]
         win = [f"{int(t0)}-{int(t1)} s" for t0, t1 in zip([0.0, *first["times"][:-1]], first["times"])]

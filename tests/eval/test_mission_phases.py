@@ -53,3 +53,16 @@ def test_bad_input_is_one_line(mp, capsys):
     assert "coverage" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         mp.main(["--switch-s", "0"])
+
+
+def test_avoided_altitude_is_left_after_the_switch_only(mp):
+    """Greedy flies the 15 x 15 map at 8 m almost throughout after 100 s; kept off 8 m it flies at 14 m
+    there (the leg that crosses 100 s excepted) and the same as before until then."""
+    seeds = episode_seeds(0, 2)
+    alone = mp.phases(TASK, "greedy", seeds, {})
+    kept = mp.phases(TASK, "greedy", seeds, {}, "greedy", 100.0, avoid_z=8.0)
+    assert alone["share"][2:, 0].min() > 0.9  # 8 m is greedy's choice there
+    np.testing.assert_array_equal(kept["reduction"][:, :2], alone["reduction"][:, :2])
+    np.testing.assert_array_equal(kept["share"][:2], alone["share"][:2])
+    assert kept["share"][2, 0] < 0.05 and kept["share"][3, 0] == 0.0
+    assert (kept["reduction"][:, 3] < alone["reduction"][:, 3]).all()  # and 14 m sees less here

@@ -25,9 +25,16 @@ import numpy as np
 
 from ipp_bench.envs import make_env, parse_overrides
 from ipp_bench.eval.plan import episode_seeds, resolve_task
+from ipp_bench.eval.report import bootstrap_ci
 from ipp_bench.config import TIME_TOL_S
 from ipp_bench.planners import make_planner, view_for
 from ipp_bench.planners.episode import fly_episode
+
+
+def check_handover_kind(spec: str, planner) -> None:
+    """A hand-over flies roadmap planners only: one line naming the planner otherwise."""
+    if planner.kind != "graph":
+        raise ValueError(f"--then: {spec!r} is a {planner.kind} planner; a hand-over needs roadmap planners")
 
 
 class Handover:
@@ -38,9 +45,8 @@ class Handover:
     def __init__(self, first: str, then: str, switch_s: float, env, avoid_z: float | None = None) -> None:
         self.first, self.switch_s, self.env, self.avoid_z = make_planner(first), switch_s, env, avoid_z
         self.then = self.first if then == first else make_planner(then)  # the same planner: one instance
-        for spec, p in ((first, self.first), (then, self.then)):
-            if p.kind != "graph":
-                raise ValueError(f"--then: {spec!r} is a {p.kind} planner; a hand-over needs two roadmap planners")
+        check_handover_kind(first, self.first)
+        check_handover_kind(then, self.then)
         self.name = f"{first}, then {then} from {switch_s:g} s"
 
     def reset(self, view, seed: int) -> None:
@@ -94,14 +100,6 @@ def phases(task: str, spec: str, seeds: list[int], overrides: dict, then: str = 
             "reduction": np.asarray(per_episode)}
 
 
-def paired_interval(d: np.ndarray, resamples: int = 2000) -> list[tuple[float, float]]:
-    """Percentile bootstrap 95 % interval of the mean of each column of the (episodes, times) differences."""
-    rng = np.random.default_rng(0)
-    idx = rng.integers(0, len(d), size=(resamples, len(d)))
-    means = d[idx].mean(axis=1)
-    return [(float(np.percentile(means[:, j], 2.5)), float(np.percentile(means[:, j], 97.5))) for j in range(d.shape[1])]
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--tasks", nargs="+", default=["Hotspots30Eval-v2"])
@@ -125,9 +123,9 @@ def main(argv: list[str] | None = None) -> int:
         overrides = parse_overrides(a.env)
         tasks = [resolve_task(t) for t in a.tasks]
         for spec in [*a.planners, *a.then]:
-            kind = make_planner(spec).kind  # a bad planner spec: one line, before any episode
-            if a.then and kind != "graph":
-                raise ValueError(f"--then: {spec!r} is a {kind} planner; a hand-over needs roadmap planners")
+            planner = make_planner(spec)  # a bad planner spec: one line, before any episode
+            if a.then:
+                check_handover_kind(spec, planner)
         for t in tasks:
             make_env(t, **overrides)  # a bad task or override: one line, before any episode
     except ValueError as err:
@@ -155,9 +153,10 @@ def main(argv: list[str] | None = None) -> int:
         print("budget left unflown at the end [s]: " + ", ".join(f"{s} {r['unflown']:.2f}" for s, r in rows))
         for spec, label, r in handovers:
             d = r["reduction"] - own[spec]["reduction"]
+            cis = [bootstrap_ci(d[:, j]) for j in range(d.shape[1])]  # the leaderboard's paired interval
             print(f"{label} minus its first planner alone, reduction at " + " / ".join(
                 f"{t:g}" for t in first["times"]) + " s [95 % paired bootstrap interval]: " + " / ".join(
-                f"{m:+.1f} [{lo:+.1f}, {hi:+.1f}]" for m, (lo, hi) in zip(d.mean(axis=0), paired_interval(d))))
+                f"{m:+.1f}" + (f" [{lo:+.1f}, {hi:+.1f}]" if lo is not None else "") for m, lo, hi in cis))
     return 0
 
 

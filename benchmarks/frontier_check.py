@@ -119,7 +119,7 @@ def check(agg: Aggregate, planner: str) -> tuple[str, dict[str, bool]]:
             key = 0 if short.startswith("Hotspots30") else 2  # H30: a mean ahead; H15: an interval below 0
             sib = [(p, t) for p in siblings for t in times
                    if diff[p][t][key] is not None and (diff[p][t][key] <= 0 if key == 0 else diff[p][t][key] < 0)]
-            lines.append(f"other weights of {family} ahead (candidates, not baselines; not in the verdict): "
+            lines.append(f"other weights of {family} level or ahead (candidates, not baselines; not in the verdict): "
                          + (", ".join(f"{p} at {t:g} s" for p, t in sib) or "none"))
     return "\n".join(lines), verdicts
 

@@ -39,7 +39,7 @@ import torch
 from ipp_bench.envs.registry import task_spec
 from ipp_bench.policies.train import (TrainArgs, _validation, check_warm_start_seeds, load_init, make_train_env,
                                       set_threads)
-from ipp_bench.policies.warmstart import check_expert_on, warm_start
+from ipp_bench.policies.warmstart import check_expert, check_expert_on, warm_start
 
 try:  # the probes of bench_teachers.py as teachers (this script's folder is on sys.path when run)
     from bench_teachers import register_probes
@@ -86,6 +86,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--round-episodes", type=int, default=50, help="each DAgger round's episodes")
     ap.add_argument("--epochs", type=int, default=4, help="fitting epochs per round")
     ap.add_argument("--lr", type=float, default=1e-4, help="the fit's learning rate")
+    ap.add_argument("--distill", action="store_true",
+                    help="every teacher is a network (give each task one with --teacher-for, or the hotspot tasks "
+                         "--teacher's and no v1 task) and labels with its policy: ipp-bench train's --bc-distill at "
+                         "temperature 1 (issue 17, twentieth session)")
     ap.add_argument("--seed", type=int, default=0,
                     help="seed of the episodes (seeds SEED * 1 000 003 on), the sampling and the fit's batches; "
                          "0 made the shipped checkpoints")
@@ -131,10 +135,13 @@ def main(argv: list[str] | None = None) -> int:
                                     if t in given or ("Hotspots" in t and teacher != "greedy")],
                     bc_episodes=args.episodes, bc_rounds=args.rounds, bc_round_episodes=args.round_episodes,
                     bc_epochs=args.epochs, bc_lr=args.lr,
-                    bc_temperature=0.05, gamma=0.99, batch_size=128, eval_episodes=16, val_task=VAL,
+                    bc_temperature=1.0 if args.distill else 0.05, bc_distill=args.distill, gamma=0.99, batch_size=128, eval_episodes=16, val_task=VAL,
                     seed=args.seed)
     set_threads(1)
     try:
+        register_probes()
+        for name in dict.fromkeys(cfg.experts()):  # --distill: a teacher with a policy to distil
+            check_expert(name, cfg.bc_distill)
         check_warm_start_seeds(cfg)
         check_expert_specs(cfg)
     except ValueError as err:

@@ -74,6 +74,13 @@ class AttentionConfig:
     # that crosses plan_s counts pro rata). About K x (legs in plan_s) forward passes per decision.
     samples: int = 0
     plan_s: float = 30.0  # [s] flight time each imagined trajectory covers, > 0
+    # a flight level kept out of the mission's later part (a hand rule, off by default): from mission time
+    # avoid_from_s on, the planner never picks a neighbour at altitude avoid_altitude [m] while another
+    # neighbour is affordable (the network, the stall guard and imagined flights alike). 0 = off. Made for
+    # the three-level probe of issue 17, where the network keeps flying the 8 m level late in a hotspot
+    # mission and loses to the 10 m level there (benchmarks/RESULTS.md, issue 17, nineteenth session).
+    avoid_altitude: float = 0.0
+    avoid_from_s: float = 0.0  # [s] mission time from which avoid_altitude holds, >= 0
 
     def __post_init__(self) -> None:
         try:
@@ -89,6 +96,16 @@ class AttentionConfig:
             raise ValueError(f"attention.plan_s = {self.plan_s!r} is invalid: expected a number > 0 [s]")
         object.__setattr__(self, "samples", samples)
         object.__setattr__(self, "plan_s", plan_s)
+        for field, low in (("avoid_altitude", "0 (off) or a flight level's altitude > 0 [m]"),
+                           ("avoid_from_s", "a mission time >= 0 [s]")):
+            raw = getattr(self, field)
+            try:
+                value = float(raw) if not isinstance(raw, bool) else float("nan")
+            except (TypeError, ValueError):
+                value = float("nan")
+            if not 0.0 <= value < float("inf"):
+                raise ValueError(f"attention.{field} = {raw!r} is invalid: expected {low}")
+            object.__setattr__(self, field, value)
         try:
             legs = int(self.stall_legs.strip()) if isinstance(self.stall_legs, str) else self.stall_legs
             cells = float(self.stall_cells)
@@ -171,6 +188,9 @@ class AttentionPlanner(GraphPlanner):
     name = "attention"
     kind = "graph"
     Config = AttentionConfig
+    #: the last decision's logits over the k neighbours (-inf: masked, the avoid rule's included); None when
+    #: the stall guard decided (or before the first decision)
+    policy_logits: np.ndarray | None = None
 
     def __init__(self, config: AttentionConfig | None = None, net=None, **kwargs: Any):
         """Args: ``config`` (or its fields as keywords); ``net``: decide with this network (e.g.
@@ -223,6 +243,11 @@ class AttentionPlanner(GraphPlanner):
                                       "score, whose far targets' look gains read the full covariance")
         if self.settings.samples:
             self._check_sampling(view)
+        if self.settings.avoid_altitude:
+            levels = np.unique(np.round(view.roadmap.positions[:, 2], 6))
+            if not np.isclose(levels, self.settings.avoid_altitude).any():
+                raise ValueError(f"attention.avoid_altitude = {self.settings.avoid_altitude:g} is not a flight level of "
+                                 f"this task: its roadmap flies at {[float(f'{z:g}') for z in levels]} m (or 0: off)")
         super().reset(view, seed)
         self._legs: dict[tuple[int, int], tuple | None] = {}  # (node, action) -> the leg's read-outs, stacked
         self._costs: dict[int, np.ndarray] = {}  # node -> flight times to its neighbours [s]
@@ -231,6 +256,7 @@ class AttentionPlanner(GraphPlanner):
         self._totals: list[float] = []  # the belief's total variance at the last stall_legs + 1 decisions
         self._escape: list[int] = []  # the stall guard's path still to fly, ending at its target ([]: the network)
         self.guard_decisions = 0  # decisions of this episode that the stall guard made
+        self.policy_logits = None
 
     def context(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """``obs`` on the nodes the network attends to: the ``context_nodes`` roadmap nodes nearest the
@@ -300,12 +326,27 @@ class AttentionPlanner(GraphPlanner):
         out[~mask] = -np.inf  # masked neighbours never win, whatever the network says
         return out
 
+    def _avoid(self, mask: np.ndarray, neighbours: np.ndarray, time_s: float) -> np.ndarray:
+        """``mask`` without the neighbours at ``avoid_altitude`` once ``time_s`` reached ``avoid_from_s``
+        (``mask`` itself before then, when the rule is off, or when nothing else would be left)."""
+        z, start = self.settings.avoid_altitude, self.settings.avoid_from_s
+        if not z or time_s < start - TIME_TOL_S:
+            return mask
+        kept = mask & ~np.isclose(self.view.roadmap.positions[np.asarray(neighbours).reshape(-1), 2], z)
+        return kept if kept.any() else mask
+
     def act(self, obs: dict[str, np.ndarray]) -> int:
+        if self.settings.avoid_altitude:
+            mask = np.asarray(obs["action_mask"])
+            kept = self._avoid(mask.astype(bool).reshape(-1), obs["neighbours"], self.view.time_s)
+            obs = dict(obs) | {"action_mask": kept.astype(mask.dtype).reshape(mask.shape)}
+        self.policy_logits = None
         guard = self._stall_guard(obs)
         if guard >= 0:
             self.guard_decisions += 1
             return guard
         logits = self._logits(obs)
+        self.policy_logits = logits  # the policy this decision drew on (a distilling warm start's target)
         if self.settings.samples:
             return self._best_imagined(obs, logits)
         if not self.settings.sample:
@@ -352,7 +393,8 @@ class AttentionPlanner(GraphPlanner):
                              f"features), not one with {base.shape[-1]}")
         feats = base.copy()
         feats[:, 4] = view.node_footprint() @ np.sqrt(variance)
-        mask = fits_budget(self._node_costs(node), remaining_s)
+        mask = self._avoid(fits_budget(self._node_costs(node), remaining_s), view.roadmap.neighbours[node],
+                           view.config.mission.budget_s - remaining_s)
         imagined = dict(obs) | {
             "node_features": feats, "current_node": np.array([node], dtype=np.int64),
             "neighbours": view.roadmap.neighbours[node].copy(), "action_mask": mask.astype(np.int8),

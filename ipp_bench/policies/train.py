@@ -168,6 +168,9 @@ class TrainArgs:
     bc_lr: float = opt(3e-4, "warm-start learning rate", WARM)
     bc_temperature: float = opt(0.1, "soft targets p ~ exp((score/best - 1)/T) from the expert's scores; "
                                      "0 = one-hot on its action", WARM)
+    bc_distill: bool = opt(False, "a network teacher (--warm-start attention:...) labels with its policy, "
+                                  "softmax(logits / --bc-temperature) over the neighbours it allows (1 = its own), "
+                                  "instead of one-hot on its move", WARM)
     val_task: list[str] = opt([], "a task of the validation episodes (seeds 10,000,000 onwards, held out of "
                                   "training; repeatable, e.g. a training task of every map size: the "
                                   "network is exported at the best mean over them); none = the training tasks", VAL)
@@ -344,8 +347,10 @@ def _check(cfg: TrainArgs) -> None:
             raise ValueError(f"--init {cfg.init}: its network is {init_net.cfg}, the options give "
                              f"{cfg.net_config()} (match --embed-dim, --n-heads, --ff-dim, --gain-feature)")
     if cfg.warm_start != "none":
-        check_expert(cfg.warm_start)
+        check_expert(cfg.warm_start, cfg.bc_distill)
         check_warm_start_seeds(cfg)
+    elif cfg.bc_distill:
+        raise ValueError("--bc-distill needs --warm-start attention:... (the network teacher whose policy is distilled)")
     for item in cfg.warm_start_for:
         task, sep, expert = item.partition("=")
         if not sep or task not in cfg.tasks:
@@ -353,7 +358,7 @@ def _check(cfg: TrainArgs) -> None:
                              f"training tasks {cfg.tasks}")
         if cfg.warm_start == "none":
             raise ValueError(f"--warm-start-for {item!r} needs --warm-start (the expert of the other tasks)")
-        check_expert(expert)
+        check_expert(expert, cfg.bc_distill)
     import gymnasium as gym
 
     import ipp_bench.envs  # noqa: F401 - registers the tasks

@@ -33,9 +33,10 @@ from ipp_bench.policies.features import extend_observation
 from ipp_bench.policies.network import MASKED_LOGIT, AttentionNet, NetConfig
 
 
-def check_expert(name: str) -> None:
-    """Raise ValueError unless ``name`` is a roadmap planner of the registry (called before a run starts)."""
-    make_expert(name)
+def check_expert(name: str, distill: bool = False) -> None:
+    """Raise ValueError unless ``name`` is a roadmap planner of the registry (and, with ``distill``, one with a
+    policy to distil), called before a run starts."""
+    make_expert(name, distill)
 
 
 def check_expert_on(name: str, env: Any, task: str) -> None:
@@ -52,8 +53,9 @@ def check_expert_on(name: str, env: Any, task: str) -> None:
         raise ValueError(f"--warm-start {name} on {task}: {err}") from None
 
 
-def make_expert(name: str) -> _PlannerExpert:
-    """``expert(obs) -> (action, scores)`` from the planner registry (``greedy``, ``mcts``, ...)."""
+def make_expert(name: str, distill: bool = False) -> _PlannerExpert:
+    """``expert(obs) -> (action, scores)`` from the planner registry (``greedy``, ``mcts``, ...);
+    ``distill``: a network teacher (``attention``) labels with its policy (:class:`PolicyLogits`)."""
     try:
         from ipp_bench.planners import make_planner
     except ImportError as err:
@@ -65,17 +67,33 @@ def make_expert(name: str) -> _PlannerExpert:
     if getattr(planner, "kind", None) != "graph":
         raise ValueError(f"--warm-start {name!r} is invalid: it is a {planner.kind} planner; a roadmap planner "
                          "(kind 'graph': greedy, mcts, random) is needed to label neighbours, or 'none'")
-    return _PlannerExpert(planner)
+    if distill and not hasattr(planner, "policy_logits"):
+        raise ValueError(f"--bc-distill needs a network teacher (attention:...) whose labels are its policy; "
+                         f"--warm-start {name!r} is a planner with no policy to distil")
+    return _PlannerExpert(planner, distill)
+
+
+class PolicyLogits(np.ndarray):
+    """A network teacher's logits over the k neighbours (-inf: not allowed), as its label under
+    ``--bc-distill``: :func:`soft_target` makes them ``softmax(logits / temperature)``."""
 
 
 class _PlannerExpert:
     """A registry planner as ``expert(obs) -> (action, scores)``; reset with the episode's view."""
 
-    def __init__(self, planner: Any) -> None:
-        self.planner = planner
+    def __init__(self, planner: Any, distill: bool = False) -> None:
+        self.planner, self.distill = planner, distill
 
     def __call__(self, obs: dict) -> tuple[int, np.ndarray | None]:
-        """The expert's action and, where the planner exposes them, its scores per neighbour."""
+        """The expert's action and, where the planner exposes them, its scores per neighbour (under
+        ``distill``, a network teacher's logits: :class:`PolicyLogits`; None, a one-hot label, where a rule
+        of its own (the stall guard) or its trajectory sampling flew another leg than their argmax)."""
+        if self.distill:
+            action = int(self.planner.act(obs))
+            logits = self.planner.policy_logits
+            if logits is None or action != int(np.argmax(logits)):  # its own rule or its search flew another leg
+                return action, None
+            return action, np.asarray(logits, dtype=np.float64).view(PolicyLogits)
         if getattr(self.planner, "reads_truth", False):
             # a reference planner (the oracle) may fly towards a far target rather than its scores'
             # argmax: the label is its move, soft over its scores only where the two agree
@@ -143,11 +161,17 @@ def soft_target(action: int, scores: np.ndarray | None, k: int, temperature: flo
     With expert scores (e.g. greedy's predicted gain per second), neighbours scoring close to the
     best share the probability: ``p ~ exp((s / s_max - 1) / temperature)`` over the valid ones, so
     near-ties are not forced apart. Without scores (or ``temperature = 0``): one-hot on the action.
+    A network teacher's logits (:class:`PolicyLogits`, ``--bc-distill``): ``softmax(logits / temperature)``,
+    its own policy at temperature 1.
     """
     target = np.zeros(k, dtype=np.float32)
     if scores is None or temperature <= 0:
         target[action] = 1.0
         return target
+    if isinstance(scores, PolicyLogits):
+        z = np.asarray(scores, dtype=np.float64) / temperature
+        p = np.exp(z - z.max())  # exp(-inf) = 0: what the teacher does not allow
+        return (p / p.sum()).astype(np.float32)
     valid = np.isfinite(scores)
     best = scores[action]
     if best <= 0 or not valid.any():
@@ -365,7 +389,7 @@ def warm_start(cfg: Any, run: Path, device: torch.device, say: Callable[[str], N
     n_tasks = len(getattr(cfg, "tasks", [None]))
     envs = [make_env(i) for i in range(n_tasks)] if n_tasks > 1 else [make_env()]
     names = cfg.experts() if hasattr(cfg, "experts") else [cfg.warm_start]
-    experts = [make_expert(name) for name in names]  # one per task, in environment order
+    experts = [make_expert(name, getattr(cfg, "bc_distill", False)) for name in names]  # one per task, in order
     torch.manual_seed(cfg.seed)
     net = AttentionNet(net_config).to(device)
     if init is not None:

@@ -283,3 +283,73 @@ def test_the_stall_guard_breaks_an_oscillation_that_the_camera_error_pins():
     # deterministic: the same seed flies the same episode
     again, res_again, _ = _fly_twin("attention")
     assert res_again.report == res_guarded.report and again.guard_decisions == guarded.guard_decisions
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("avoid_altitude=-8", r"attention.avoid_altitude = -8.0 is invalid: expected 0 \(off\) or a flight level's altitude"),
+    ("avoid_altitude=low", r"attention.avoid_altitude = 'low' is invalid: expected a number"),
+    ("avoid_altitude=inf", r"attention.avoid_altitude = inf is invalid: expected 0 \(off\)"),
+    ("avoid_from_s=-1", r"attention.avoid_from_s = -1.0 is invalid: expected a mission time >= 0 \[s\]"),
+    ("avoid_from_s=nan", r"attention.avoid_from_s = nan is invalid: expected a mission time >= 0"),
+])
+def test_a_bad_avoid_setting_is_refused_in_one_line(spec, message):
+    with pytest.raises(ValueError, match=message) as err:
+        make_planner(f"attention:{spec}")
+    assert "\n" not in str(err.value)
+
+
+def _fly_low(spec, task="ipp_bench/Hotspots15Eval-v2", seed=3):
+    """An episode of ``spec`` on ``task`` with three flight levels, its network replaced by one that always
+    wants the lowest neighbour; -> [(mission time, altitude of the chosen neighbour)] per decision, a decision
+    where no neighbour but those at 8 m was affordable left out."""
+    from ipp_bench.envs import make_env
+    from ipp_bench.planners.episode import fly_episode
+
+    env = make_env(task, altitudes=[8.0, 10.0, 14.0], k=21)
+    planner = make_planner(spec)
+    original_reset = planner.reset
+    chosen = []
+
+    def reset(view, s):
+        original_reset(view, s)
+        z = view.roadmap.positions[:, 2]
+        planner._logits = lambda obs, source=None: np.where(
+            obs["action_mask"].astype(bool), -z[np.asarray(obs["neighbours"])], -np.inf)
+
+    def on_decision(d):
+        z = env.roadmap.positions[np.asarray(d.obs["neighbours"]), 2]
+        if (d.obs["action_mask"].astype(bool) & (z != 8.0)).any():
+            chosen.append((time_before[-1], float(env.mission.position[2])))
+        time_before.append(env.mission.time_s)
+
+    time_before = [0.0]
+    planner.reset = reset
+    fly_episode(env, planner, seed, on_decision=on_decision)
+    return chosen
+
+
+def test_avoid_altitude_keeps_the_planner_off_a_flight_level_from_its_time_on():
+    """From ``avoid_from_s`` on, no decision lands on the ``avoid_altitude`` level while another neighbour
+    is affordable; before it, the decisions are the planner's own (a policy that always wants the lowest
+    level flies it all mission long without the rule)."""
+    plain = _fly_low("attention:stall_legs=0")
+    assert all(z == 8.0 for t, z in plain)
+    kept = _fly_low("attention:stall_legs=0,avoid_altitude=8,avoid_from_s=50")
+    early = [c for c in kept if c[0] < 50.0]
+    assert early == plain[:len(early)] and len(early) >= 3
+    late = [z for t, z in kept if t >= 50.0]
+    assert late and all(z == 10.0 for z in late)  # the lowest level left
+    # from the start, never at 8 m
+    assert all(z == 10.0 for t, z in _fly_low("attention:stall_legs=0,avoid_altitude=8")[1:])
+
+
+def test_avoid_altitude_that_is_no_flight_level_is_refused_at_reset():
+    from ipp_bench.envs import make_env
+
+    env = make_env("ipp_bench/Hotspots15Eval-v2", altitudes=[8.0, 10.0, 14.0], k=21)
+    env.reset(seed=0)
+    planner = make_planner("attention:avoid_altitude=9")
+    with pytest.raises(ValueError, match=r"attention.avoid_altitude = 9 is not a flight level of this task: its "
+                                         r"roadmap flies at \[8.0, 10.0, 14.0\] m \(or 0: off\)") as err:
+        planner.reset(RobotView(env), 0)
+    assert "\n" not in str(err.value)

@@ -122,6 +122,52 @@ def test_soft_targets():
     assert soft_target(1, s, 4, 0.0).tolist() == [0, 1, 0, 0]
 
 
+def test_a_network_teachers_logits_are_its_policy_under_distillation():
+    import numpy as np
+
+    from ipp_bench.policies.warmstart import PolicyLogits
+
+    logits = np.array([2.0, 0.5, -np.inf, 1.0]).view(PolicyLogits)
+    for temperature in (1.0, 0.5):
+        z = np.exp(np.array([2.0, 0.5, 1.0]) / temperature)
+        expected = np.insert(z / z.sum(), 2, 0.0)
+        assert np.allclose(soft_target(0, logits, 4, temperature), expected, atol=1e-7)
+    assert soft_target(0, logits, 4, 0.0).tolist() == [1, 0, 0, 0]
+    # the same numbers as plain scores are greedy's gains, not a policy: p ~ exp((s / s_max - 1) / T)
+    assert not np.allclose(soft_target(0, np.array([2.0, 0.5, -np.inf, 1.0]), 4, 1.0), expected, atol=1e-3)
+
+
+def test_distillation_labels_with_the_teachers_policy_and_its_avoid_rule():
+    """Under ``--bc-distill`` an ``attention`` teacher's label is the softmax of the logits it decided on: the
+    network's own policy, with the neighbours its rules exclude (here the 8 m level from 50 s on) at 0."""
+    import numpy as np
+
+    from ipp_bench.envs import make_env
+    from ipp_bench.planners import view_for
+    from ipp_bench.policies.warmstart import PolicyLogits, make_expert
+
+    env = make_env("ipp_bench/Hotspots15Eval-v2", altitudes=[8.0, 10.0, 14.0], k=21)
+    expert = make_expert("attention:stall_legs=0,avoid_altitude=8,avoid_from_s=50", distill=True)
+    obs, _ = env.reset(seed=0)
+    expert.planner.reset(view_for(expert.planner, env), 0)
+    z = env.roadmap.positions[:, 2]
+    late_with_low = 0
+    while obs["action_mask"].any():
+        t = env.mission.time_s
+        action, logits = expert(obs)
+        assert isinstance(logits, PolicyLogits) and action == int(np.argmax(logits))
+        target = soft_target(action, logits, len(logits), 1.0)
+        nb_low = np.isclose(z[obs["neighbours"]], 8.0)
+        raw = expert.planner.probabilities(obs)  # the network's policy without the rule
+        if t < 50.0:
+            assert np.allclose(target, raw, atol=1e-6)
+        elif (obs["action_mask"].astype(bool) & ~nb_low).any():
+            assert target[nb_low].sum() == 0.0 and abs(target.sum() - 1) < 1e-6
+            late_with_low += bool((raw[nb_low] > 1e-3).any())
+        obs, *_ = env.step(action)
+    assert late_with_low > 0  # the rule took probability off the 8 m level that the network gave it
+
+
 def test_options_are_generated_from_the_dataclass():
     import argparse
 
@@ -249,6 +295,8 @@ def test_mix_and_skip_teacher_are_checked_before_the_run_folder(tmp_path, capsys
         (["--mix", "ipp_bench/Nope-v1"], "--mix 'ipp_bench/Nope-v1' is not a registered task"),
         (["--mix", "ipp_bench/Grid15-v0"], "named twice"),
         (["--skip-teacher", "far"], "--skip-teacher far needs --rate-skip"),
+        (["--bc-distill"], "--bc-distill needs a network teacher (attention:...)"),
+        (["--warm-start", "none", "--bc-distill"], "--bc-distill needs --warm-start attention:..."),
         (["--val-task", "ipp_bench/Grid30Train-v1", "--val-task", "ipp_bench/Nope-v1"],
          "--val-task 'ipp_bench/Nope-v1' is not a registered task"),
     ]

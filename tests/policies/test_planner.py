@@ -224,8 +224,13 @@ def test_the_shipped_average_is_its_documented_formula_and_the_script_rebuilds_i
     ("stall_cells=-2", r"attention.stall_cells = -2.0 is invalid: expected a number > 0"),
     ("stall_cells=inf", r"attention.stall_cells = inf is invalid: expected a number > 0"),
     ("stall_cells=nan", r"attention.stall_cells = nan is invalid: expected a number > 0"),
+    ("avoid_altitude=-8", r"attention.avoid_altitude = -8.0 is invalid: expected 0 \(off\) or a flight level's altitude"),
+    ("avoid_altitude=low", r"attention.avoid_altitude = 'low' is invalid: expected a number"),
+    ("avoid_altitude=inf", r"attention.avoid_altitude = inf is invalid: expected 0 \(off\)"),
+    ("avoid_from_s=-1", r"attention.avoid_from_s = -1.0 is invalid: expected a mission time >= 0 \[s\]"),
+    ("avoid_from_s=nan", r"attention.avoid_from_s = nan is invalid: expected a mission time >= 0"),
 ])
-def test_a_bad_stall_guard_setting_is_refused_in_one_line(spec, message):
+def test_a_bad_stall_guard_or_avoid_setting_is_refused_in_one_line(spec, message):
     with pytest.raises(ValueError, match=message) as err:
         make_planner(f"attention:{spec}")
     assert "\n" not in str(err.value)
@@ -283,19 +288,6 @@ def test_the_stall_guard_breaks_an_oscillation_that_the_camera_error_pins():
     # deterministic: the same seed flies the same episode
     again, res_again, _ = _fly_twin("attention")
     assert res_again.report == res_guarded.report and again.guard_decisions == guarded.guard_decisions
-
-
-@pytest.mark.parametrize("spec, message", [
-    ("avoid_altitude=-8", r"attention.avoid_altitude = -8.0 is invalid: expected 0 \(off\) or a flight level's altitude"),
-    ("avoid_altitude=low", r"attention.avoid_altitude = 'low' is invalid: expected a number"),
-    ("avoid_altitude=inf", r"attention.avoid_altitude = inf is invalid: expected 0 \(off\)"),
-    ("avoid_from_s=-1", r"attention.avoid_from_s = -1.0 is invalid: expected a mission time >= 0 \[s\]"),
-    ("avoid_from_s=nan", r"attention.avoid_from_s = nan is invalid: expected a mission time >= 0"),
-])
-def test_a_bad_avoid_setting_is_refused_in_one_line(spec, message):
-    with pytest.raises(ValueError, match=message) as err:
-        make_planner(f"attention:{spec}")
-    assert "\n" not in str(err.value)
 
 
 def _fly_low(spec, task="ipp_bench/Hotspots15Eval-v2", seed=3):

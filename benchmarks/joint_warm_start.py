@@ -135,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
                                     if t in given or ("Hotspots" in t and teacher != "greedy")],
                     bc_episodes=args.episodes, bc_rounds=args.rounds, bc_round_episodes=args.round_episodes,
                     bc_epochs=args.epochs, bc_lr=args.lr,
-                    bc_temperature=1.0 if args.distill else 0.05, bc_distill=args.distill, gamma=0.99, batch_size=128, eval_episodes=16, val_task=VAL,
+                    bc_temperature=1.0 if args.distill else 0.05, bc_distill=args.distill, gamma=0.99, batch_size=128,
+                    eval_episodes=16, val_task=VAL,
                     seed=args.seed)
     set_threads(1)
     try:

@@ -246,8 +246,9 @@ class AttentionPlanner(GraphPlanner):
         if self.settings.avoid_altitude:
             levels = np.unique(np.round(view.roadmap.positions[:, 2], 6))
             if not np.isclose(levels, self.settings.avoid_altitude).any():
-                raise ValueError(f"attention.avoid_altitude = {self.settings.avoid_altitude:g} is not a flight level of "
-                                 f"this task: its roadmap flies at {[float(f'{z:g}') for z in levels]} m (or 0: off)")
+                named = [float(f"{z:g}") for z in levels]
+                raise ValueError(f"attention.avoid_altitude = {self.settings.avoid_altitude:g} is not a flight level "
+                                 f"of this task: its roadmap flies at {named} m (or 0: off)")
         super().reset(view, seed)
         self._legs: dict[tuple[int, int], tuple | None] = {}  # (node, action) -> the leg's read-outs, stacked
         self._costs: dict[int, np.ndarray] = {}  # node -> flight times to its neighbours [s]

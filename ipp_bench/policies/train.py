@@ -350,7 +350,8 @@ def _check(cfg: TrainArgs) -> None:
         check_expert(cfg.warm_start, cfg.bc_distill)
         check_warm_start_seeds(cfg)
     elif cfg.bc_distill:
-        raise ValueError("--bc-distill needs --warm-start attention:... (the network teacher whose policy is distilled)")
+        raise ValueError("--bc-distill needs --warm-start attention:... "
+                         "(the network teacher whose policy is distilled)")
     for item in cfg.warm_start_for:
         task, sep, expert = item.partition("=")
         if not sep or task not in cfg.tasks:

@@ -28,6 +28,7 @@ from ipp_bench.eval.plan import episode_seeds, resolve_task
 from ipp_bench.eval.report import bootstrap_ci
 from ipp_bench.config import TIME_TOL_S
 from ipp_bench.planners import make_planner, view_for
+from ipp_bench.planners.base import without_level
 from ipp_bench.planners.episode import fly_episode
 
 
@@ -59,9 +60,8 @@ class Handover:
             return self.first.act(obs)
         if self.avoid_z is not None:
             z = self.env.roadmap.positions[np.asarray(obs["neighbours"]), 2]
-            mask = np.asarray(obs["action_mask"]).astype(bool) & ~np.isclose(z, self.avoid_z)
-            if mask.any():
-                obs = dict(obs) | {"action_mask": mask.astype(np.asarray(obs["action_mask"]).dtype)}
+            mask = without_level(obs["action_mask"], z, self.avoid_z)
+            obs = dict(obs) | {"action_mask": mask.astype(np.asarray(obs["action_mask"]).dtype)}
         return self.then.act(obs)
 
 

@@ -58,6 +58,13 @@ def stacked_leg(view: "RobotView", node: int, action: int) -> tuple | None:
     return stack(obs) if obs else None
 
 
+def without_level(mask: np.ndarray, altitudes: np.ndarray, z: float) -> np.ndarray:
+    """``mask`` (the neighbours one may fly to) without those at altitude ``z`` (``altitudes``: the
+    neighbours' altitudes [m]); ``mask`` itself when nothing else would be left."""
+    kept = np.asarray(mask, dtype=bool) & ~np.isclose(altitudes, z)
+    return kept if kept.any() else np.asarray(mask, dtype=bool)
+
+
 def softmax(logits: np.ndarray) -> np.ndarray:
     """Probabilities ``exp(l - max l) / sum``; ``-inf`` logits get probability 0."""
     p = np.exp(logits - logits.max())

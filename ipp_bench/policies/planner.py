@@ -30,7 +30,7 @@ import numpy as np
 from ..belief import downdate_inplace, gain_factor
 from ..config import TIME_TOL_S
 from ..mission import fits_budget
-from ..planners.base import GraphPlanner, RobotView, beats, softmax, stacked_leg
+from ..planners.base import GraphPlanner, RobotView, beats, softmax, stacked_leg, without_level
 
 #: nodes the network attends to by default: all of them up to 30 x 30 (1800), at 128 x 128 (32 768
 #: nodes) the 4096 nearest the UAV, a disc of about 64 m radius (benchmarks/RESULTS.md, issue 20)
@@ -333,8 +333,7 @@ class AttentionPlanner(GraphPlanner):
         z, start = self.settings.avoid_altitude, self.settings.avoid_from_s
         if not z or time_s < start - TIME_TOL_S:
             return mask
-        kept = mask & ~np.isclose(self.view.roadmap.positions[np.asarray(neighbours).reshape(-1), 2], z)
-        return kept if kept.any() else mask
+        return without_level(mask, self.view.roadmap.positions[np.asarray(neighbours).reshape(-1), 2], z)
 
     def act(self, obs: dict[str, np.ndarray]) -> int:
         if self.settings.avoid_altitude:

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ipp_bench.planners.base import GraphPlanner
+from ipp_bench.planners.base import GraphPlanner, softmax
 from ipp_bench.planners.episode import fly_episode
 from ipp_bench.policies.checkpoint import load_checkpoint, save_checkpoint
 from ipp_bench.policies.features import extend_observation
@@ -168,10 +168,8 @@ def soft_target(action: int, scores: np.ndarray | None, k: int, temperature: flo
     if scores is None or temperature <= 0:
         target[action] = 1.0
         return target
-    if isinstance(scores, PolicyLogits):
-        z = np.asarray(scores, dtype=np.float64) / temperature
-        p = np.exp(z - z.max())  # exp(-inf) = 0: what the teacher does not allow
-        return (p / p.sum()).astype(np.float32)
+    if isinstance(scores, PolicyLogits):  # -inf logits (what the teacher does not allow) get 0
+        return softmax(np.asarray(scores, dtype=np.float64) / temperature).astype(np.float32)
     valid = np.isfinite(scores)
     best = scores[action]
     if best <= 0 or not valid.any():

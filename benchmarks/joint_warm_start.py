@@ -49,9 +49,11 @@ except ImportError:  # imported from elsewhere: the registry's planners only
 
 
 def check_expert_specs(cfg: TrainArgs) -> None:
-    """Every teacher builds and starts an episode of its task before the first episode (ValueError with
-    the planner's message)."""
+    """Every teacher builds (under --distill, with a policy to distil) and starts an episode of its task
+    before the first episode (ValueError with the planner's message)."""
     register_probes()
+    for name in dict.fromkeys(cfg.experts()):  # no environment needed: before the ones below are built
+        check_expert(name, cfg.bc_distill)
     for i, (task, name) in enumerate(zip(cfg.tasks, cfg.experts())):
         env = make_train_env(cfg, i)
         try:
@@ -140,9 +142,6 @@ def main(argv: list[str] | None = None) -> int:
                     seed=args.seed)
     set_threads(1)
     try:
-        register_probes()
-        for name in dict.fromkeys(cfg.experts()):  # --distill: a teacher with a policy to distil
-            check_expert(name, cfg.bc_distill)
         check_warm_start_seeds(cfg)
         check_expert_specs(cfg)
     except ValueError as err:

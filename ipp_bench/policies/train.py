@@ -103,8 +103,9 @@ class TrainArgs:
     help from the metadata; a ``bool`` field that defaults to True becomes ``--no-<name>``.
     """
 
-    task: str = opt("ipp_bench/Grid15Train-v1", "gymnasium task id to train on (a training task: its seeds are "
-                                                "disjoint from the leaderboard's)")
+    task: str = opt("ipp_bench/Grid15Train-v1", "task id to train on (prefix optional), or a task file "
+                                                "path/to/mine.toml (a training task: its seeds are disjoint from "
+                                                "the leaderboard's)")
     mix: list[str] = opt([], "another task to train on, on the same roadmap as --task (e.g. the v2 task of the "
                              "map size; repeatable): environment i trains on [task, *mix][i %% n]; validated on each",
                          metavar="TASK")
@@ -360,24 +361,22 @@ def _check(cfg: TrainArgs) -> None:
         if cfg.warm_start == "none":
             raise ValueError(f"--warm-start-for {item!r} needs --warm-start (the expert of the other tasks)")
         check_expert(expert, cfg.bc_distill)
-    import gymnasium as gym
+    from ipp_bench.envs import resolve_task
 
-    import ipp_bench.envs  # noqa: F401 - registers the tasks
-
-    for flag, task in [("--task", cfg.task)] + [("--mix", t) for t in cfg.mix]:
-        if task not in gym.registry:
-            valid = sorted(t for t in gym.registry if t.startswith("ipp_bench/"))
-            raise ValueError(f"{flag} {task!r} is not a registered task: valid are {valid}")
+    resolved: dict[str, str] = {}
+    for flag, task in ([("--task", cfg.task)] + [("--mix", t) for t in cfg.mix]
+                       + [("--val-task", t) for t in cfg.val_task]):
+        try:
+            resolved[task] = resolve_task(task)  # an id (prefix optional) or a task file, which this registers
+        except ValueError as err:
+            raise ValueError(f"{flag} {task!r}: {err}") from None
     if cfg.invariant and cfg.rate_skip:
         raise ValueError("--invariant and --rate-skip cannot be combined: the rate feature is the last column of "
                          "the v1 inputs")
     if cfg.skip_teacher != "greedy" and not cfg.rate_skip:
         raise ValueError(f"--skip-teacher {cfg.skip_teacher} needs --rate-skip (the score is the rate feature)")
-    if len(set(cfg.tasks)) != len(cfg.tasks):
+    if len({resolved[t] for t in cfg.tasks}) != len(cfg.tasks):
         raise ValueError(f"--mix {cfg.mix}: a task is named twice (with --task {cfg.task})")
-    for task in cfg.val_task:
-        if task not in gym.registry:
-            raise ValueError(f"--val-task {task!r} is not a registered task")
     roadmap = None
     for i, task in enumerate(cfg.tasks):
         try:
@@ -797,7 +796,7 @@ def _resolve_config(ns: argparse.Namespace) -> tuple[TrainArgs, Path]:
     else:
         cfg = TrainArgs(**given)
         if not cfg.out:
-            slug = cfg.task.replace("/", "-")
+            slug = Path(cfg.task).stem if cfg.task.endswith(".toml") else cfg.task.replace("/", "-")
             cfg.out = str(Path("runs") / f"{slug}__attention__{cfg.seed}__{time.strftime('%Y%m%d-%H%M%S')}")
         run = Path(cfg.out)
         check_output_dir(run)  # a file in the way, or not writable: one line, before any work

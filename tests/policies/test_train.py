@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -12,6 +13,7 @@ from ipp_bench.policies.checkpoint import load_checkpoint
 from ipp_bench.policies.train import VAL_SEED0, TrainArgs, add_train_arguments, check_warm_start_seeds, command_line
 from ipp_bench.policies.warmstart import soft_target
 
+REPO = Path(__file__).resolve().parents[2]
 TINY = ["--task", "ipp_bench/Grid15-v0", "--n-envs", "1", "--n-steps", "32", "--batch-size", "32",
         "--n-epochs", "1", "--embed-dim", "16", "--n-heads", "2", "--ff-dim", "32",
         "--eval-every", "32", "--eval-episodes", "1", "--checkpoint-every", "32", "--threads", "1",
@@ -292,19 +294,49 @@ def test_mix_and_skip_teacher_are_checked_before_the_run_folder(tmp_path, capsys
 
     cases = [
         (["--mix", "ipp_bench/Grid30Train-v1"], "one PPO run holds one roadmap"),
-        (["--mix", "ipp_bench/Nope-v1"], "--mix 'ipp_bench/Nope-v1' is not a registered task"),
+        (["--mix", "ipp_bench/Nope-v1"], "--mix 'ipp_bench/Nope-v1': unknown task 'ipp_bench/Nope-v1': valid are"),
         (["--mix", "ipp_bench/Grid15-v0"], "named twice"),
+        (["--mix", "Grid15-v0"], "named twice"),  # the prefix is optional: the same task
         (["--skip-teacher", "far"], "--skip-teacher far needs --rate-skip"),
         (["--bc-distill"], "--bc-distill needs a network teacher (attention:...)"),
         (["--warm-start", "none", "--bc-distill"], "--bc-distill needs --warm-start attention:..."),
         (["--val-task", "ipp_bench/Grid30Train-v1", "--val-task", "ipp_bench/Nope-v1"],
-         "--val-task 'ipp_bench/Nope-v1' is not a registered task"),
+         "--val-task 'ipp_bench/Nope-v1': unknown task"),
     ]
     _refused_in_one_line(cases, tmp_path, capsys)
     with pytest.raises(SystemExit):  # argparse: not one of the choices
         main([*TINY, "--rate-skip", "--skip-teacher", "oracle", "--out", str(tmp_path / "x")])
     assert "invalid choice: 'oracle'" in capsys.readouterr().err
 
+
+
+def test_a_broken_task_file_is_one_line_before_the_run_folder(tmp_path, capsys):
+    """`--task path/to/mine.toml` (as `evaluate` and `leaderboard` take it): a broken file is named with
+    its line, in one line, before the run folder."""
+    good = (REPO / "tasks" / "grid15_train_v1.toml").read_text()
+    bad = tmp_path / "mine.toml"
+    bad.write_text(good.replace("Grid15Train-v1", "MineBroken-v1").replace("k = 20", "k = 20.0"))
+    line = good.splitlines().index("k = 20") + 1
+    _refused_in_one_line([(["--task", str(bad)], f"--task '{bad}': {bad}:{line}: graph.k = 20.0 is invalid"),
+                          (["--val-task", str(tmp_path / "missing.toml")], "--val-task")], tmp_path, capsys)
+
+
+def test_a_users_task_file_trains_in_worker_processes(tmp_path):
+    """A task file is loaded in every worker process too (they do not inherit this one's registry), and
+    it is validated on; the run folder's default name is the file's."""
+    good = (REPO / "tasks" / "grid15_train_v1.toml").read_text()
+    mine = tmp_path / "mine.toml"
+    mine.write_text(good.replace("Grid15Train-v1", "MineTrain-v1").replace("budget_s = 200.0", "budget_s = 40.0"))
+    assert "budget_s = 40.0" in mine.read_text()
+    tiny = [a for a in TINY if a not in ("--task", "ipp_bench/Grid15-v0")]
+    proc = subprocess.run([sys.executable, "-m", "ipp_bench.cli", "train", *tiny, "--task", str(mine),
+                           "--n-envs", "2", "--vec-env", "subproc", "--total-steps", "64"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=600, check=False)
+    assert proc.returncode == 0, proc.stderr
+    (run,) = (tmp_path / "runs").iterdir()
+    assert run.name.startswith("mine__attention__0__")
+    assert json.loads((run / "state.json").read_text())["ppo_steps"] == 64
+    assert f"training {mine}" in proc.stdout and "subproc vec env" in proc.stdout
 
 def test_bad_numbers_and_folders_are_one_line_before_the_run_folder(tmp_path, capsys):
     from ipp_bench.policies.train import main

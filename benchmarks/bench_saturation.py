@@ -56,7 +56,7 @@ class LowBiasGreedy(GreedyPlanner):
         rm = self.view.roadmap
         high = rm.positions[rm.neighbours[int(obs["current_node"][0])], 2] > HIGH_ALTITUDE
         climb = high & np.isfinite(s)
-        w = self.config.high_weight
+        w = self.settings.high_weight
         s[climb] = s[climb] * w if w > 0 else -1e9  # never climb unless nothing else is affordable
         return int(np.argmax(s))
 
@@ -87,7 +87,7 @@ class GlobalGreedy(GreedyPlanner):
         t = self._time[cur]
         score = np.full(rm.n_nodes, -np.inf)
         ok = (t > 0) & (t <= view.remaining_s)
-        if view.time_s >= self.config.low_after_s:
+        if view.time_s >= self.settings.low_after_s:
             ok &= rm.positions[:, 2] <= HIGH_ALTITUDE
         score[ok] = gain[ok] / t[ok]
         if not np.isfinite(score).any():

@@ -309,7 +309,6 @@ def test_mix_and_skip_teacher_are_checked_before_the_run_folder(tmp_path, capsys
     assert "invalid choice: 'oracle'" in capsys.readouterr().err
 
 
-
 def test_a_broken_task_file_is_one_line_before_the_run_folder(tmp_path, capsys):
     """`--task path/to/mine.toml` (as `evaluate` and `leaderboard` take it): a broken file is named with
     its line, in one line, before the run folder."""
@@ -318,7 +317,9 @@ def test_a_broken_task_file_is_one_line_before_the_run_folder(tmp_path, capsys):
     bad.write_text(good.replace("Grid15Train-v1", "MineBroken-v1").replace("k = 20", "k = 20.0"))
     line = good.splitlines().index("k = 20") + 1
     _refused_in_one_line([(["--task", str(bad)], f"--task '{bad}': {bad}:{line}: graph.k = 20.0 is invalid"),
-                          (["--val-task", str(tmp_path / "missing.toml")], "--val-task")], tmp_path, capsys)
+                          (["--val-task", str(tmp_path / "missing.toml")],
+                           f"--val-task '{tmp_path / 'missing.toml'}': {tmp_path / 'missing.toml'}: cannot be read")],
+                         tmp_path, capsys)
 
 
 def test_a_users_task_file_trains_in_worker_processes(tmp_path):
@@ -337,6 +338,7 @@ def test_a_users_task_file_trains_in_worker_processes(tmp_path):
     assert run.name.startswith("mine__attention__0__")
     assert json.loads((run / "state.json").read_text())["ppo_steps"] == 64
     assert f"training {mine}" in proc.stdout and "subproc vec env" in proc.stdout
+
 
 def test_bad_numbers_and_folders_are_one_line_before_the_run_folder(tmp_path, capsys):
     from ipp_bench.policies.train import main

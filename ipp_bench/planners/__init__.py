@@ -13,6 +13,13 @@ gymnasium and pytest find plugins): a package declaring, in its ``pyproject.toml
 is found by name (``ipp-bench leaderboard --planners theirs``) once installed. The class follows
 :class:`~ipp_bench.planners.base.GraphPlanner` or :class:`~ipp_bench.planners.base.ContinuousPlanner`
 and has a ``Config`` dataclass. A built-in name is never replaced by a plugin.
+
+The suite's registry is :data:`REGISTRY`, a :class:`PlannerRegistry`. An experiment's probe planners
+go into a registry of their own, which the suite's never sees::
+
+    probes = REGISTRY.copy()  # the suite's planners, and room for more
+    probes.register("knob", KnobGreedy)  # a class, or "module:Class"
+    fly_episode(env, "knob:power=1.2", seed, registry=probes)  # or probes.make_planner("knob:power=1.2")
 """
 
 from __future__ import annotations
@@ -20,13 +27,15 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import typing
+from collections.abc import Iterator, Mapping, MutableMapping
 from importlib.metadata import entry_points
+from types import MappingProxyType
 from typing import Any
 
 from .base import ContinuousPlanner, GraphPlanner, Planner, RobotView, TruthView
 
-# name -> "module:Class"; the class has a ``Config`` dataclass attribute.
-REGISTRY: dict[str, str] = {
+#: the suite's planners: name -> "module:Class"; the class has a ``Config`` dataclass attribute
+BUILT_IN: Mapping[str, str] = MappingProxyType({
     "random": "ipp_bench.planners.simple:RandomPlanner",
     "coverage": "ipp_bench.planners.simple:CoveragePlanner",
     "greedy": "ipp_bench.planners.greedy:GreedyPlanner",
@@ -34,46 +43,148 @@ REGISTRY: dict[str, str] = {
     "cmaes": "ipp_bench.planners.cmaes:CMAESPlanner",
     "attention": "ipp_bench.policies.planner:AttentionPlanner",
     "oracle": "ipp_bench.planners.oracle:OraclePlanner",
-}
+})
 #: reference planners: they read the true ROI (a :class:`~ipp_bench.planners.base.TruthView`) to
 #: show the room above the planners that cannot; reports show them apart, never as the best
 REFERENCE_PLANNERS: tuple[str, ...] = ("oracle",)
 ENTRY_POINT_GROUP = "ipp_bench.planners"
-_plugins_loaded = False
 
 
-def _load_plugins() -> None:
-    """Add the planners other packages declare under :data:`ENTRY_POINT_GROUP` (once)."""
-    global _plugins_loaded
-    if _plugins_loaded:
-        return
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        REGISTRY.setdefault(ep.name, ep.value)
-    _plugins_loaded = True
+class PlannerRegistry(MutableMapping):
+    """Planner names -> ``"module:Class"`` targets, and the planners built from them.
+
+    A mapping (``registry[name]`` is the target), so ``monkeypatch.setitem`` and ``dict(registry)``
+    work on it. :data:`REGISTRY` is the suite's (its built-in planners and the installed plugins);
+    ``REGISTRY.copy()`` or ``PlannerRegistry(...)`` make local ones.
+
+    Args:
+        targets: name -> ``"module:Class"`` or the class itself.
+        plugins: whether the planners installed under :data:`ENTRY_POINT_GROUP` join, on first use
+            (never replacing a name already here).
+    """
+
+    def __init__(self, targets: Mapping[str, Any] | None = None, *, plugins: bool = False) -> None:
+        self._targets: dict[str, str] = {}
+        self._classes: dict[str, type] = {}  # names registered with a class, not an importable target
+        self._plugins_pending = False
+        for name, target in (targets or {}).items():
+            self.register(name, target)
+        self._plugins_pending = plugins
+
+    def _loaded(self) -> dict[str, str]:
+        """The targets, with the installed plugins added once (if this registry takes them)."""
+        if self._plugins_pending:
+            self._plugins_pending = False
+            for ep in entry_points(group=ENTRY_POINT_GROUP):
+                self._targets.setdefault(ep.name, ep.value)
+        return self._targets
+
+    # -- the mapping ------------------------------------------------------------------------------
+    def __getitem__(self, name: str) -> str:
+        return self._loaded()[name]
+
+    def __setitem__(self, name: str, target: Any) -> None:
+        self.register(name, target)
+
+    def __delitem__(self, name: str) -> None:
+        del self._loaded()[name]
+        self._classes.pop(name, None)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(list(self._loaded()))
+
+    def __len__(self) -> int:
+        return len(self._loaded())
+
+    def __repr__(self) -> str:
+        return f"PlannerRegistry({self._loaded()!r})"
+
+    # -- registering ------------------------------------------------------------------------------
+    def register(self, name: str, target: Any) -> None:
+        """Add (or replace) the planner ``name``: ``"module:Class"`` or the class itself."""
+        if not isinstance(name, str) or not name or ":" in name or "," in name or name != name.strip():
+            raise ValueError(f"planner name {name!r} is invalid: expected a non-empty word without ':' or ','")
+        if isinstance(target, type):
+            self._classes[name] = target
+            target = f"{target.__module__}:{target.__qualname__}"
+        elif isinstance(target, str) and target.count(":") == 1 and all(target.partition(":")[::2]):
+            self._classes.pop(name, None)
+        else:
+            raise ValueError(f"planner {name!r}: target {target!r} is invalid: expected 'module:Class' or a class")
+        self._loaded()[name] = target
+
+    def copy(self) -> PlannerRegistry:
+        """A local registry with this one's planners (plugins included): what is registered there stays there."""
+        out = PlannerRegistry()
+        out._targets = dict(self._loaded())
+        out._classes = dict(self._classes)
+        return out
+
+    # -- building ---------------------------------------------------------------------------------
+    def names(self) -> list[str]:
+        """Every planner name here."""
+        return list(self._loaded())
+
+    def planner_class(self, name: str) -> type:
+        """The class of the planner ``name`` (ValueError naming the valid ones if there is none)."""
+        try:
+            target = self._loaded()[name]
+        except KeyError:
+            raise ValueError(f"unknown planner {name!r}: valid are {self.names()}") from None
+        if name in self._classes:
+            return self._classes[name]
+        module, _, cls = target.partition(":")
+        try:
+            return getattr(importlib.import_module(module), cls)
+        except AttributeError:
+            raise ValueError(f"planner {name!r}: {module} has no {cls!r} (registered as {target!r})") from None
+
+    def make_config(self, name: str, overrides: dict[str, Any] | None = None) -> Any:
+        """The planner's config dataclass with ``overrides`` (strings are converted to the field type)."""
+        cls = self.planner_class(name)
+        Config = getattr(cls, "Config", None)
+        if not (isinstance(Config, type) and dataclasses.is_dataclass(Config)):
+            raise ValueError(f"planner {name!r} ({self[name]}) has no Config dataclass: a planner class "
+                             "needs one, e.g. 'Config = MyConfig' with @dataclass(frozen=True) class MyConfig "
+                             "(empty if it has no settings; see docs/planners.md)")
+        overrides = dict(overrides or {})
+        hints = typing.get_type_hints(Config)
+        fields = {f.name for f in dataclasses.fields(Config)}
+        unknown = set(overrides) - fields
+        if unknown:
+            raise ValueError(f"planner {name!r} has no setting {sorted(unknown)}: valid are {sorted(fields)}")
+        values = {k: _coerce(v, hints[k], f"{name}.{k}") for k, v in overrides.items()}
+        return Config(**values)
+
+    def make_planner(self, spec: str, **overrides: Any) -> Any:
+        """A planner from ``"name[:key=value,...]"``; keyword overrides win over the spec's."""
+        name, spec_overrides = parse_spec(spec)
+        cls = self.planner_class(name)
+        return cls(self.make_config(name, {**spec_overrides, **overrides}))
 
 
-def register(name: str, target: str) -> None:
-    """Add a planner ``"module:Class"`` under ``name`` (e.g. from a plugin)."""
-    REGISTRY[name] = target
+#: the suite's registry: the built-in planners, then the installed plugins
+REGISTRY = PlannerRegistry(BUILT_IN, plugins=True)
 
 
-def planner_names() -> list[str]:
-    """Every planner name: built-in, registered, and from installed plugins."""
-    _load_plugins()
-    return list(REGISTRY)
+def _registry(registry: PlannerRegistry | None) -> PlannerRegistry:
+    return REGISTRY if registry is None else registry
 
 
-def planner_class(name: str) -> type:
-    _load_plugins()
-    try:
-        target = REGISTRY[name]
-    except KeyError:
-        raise ValueError(f"unknown planner {name!r}: valid are {planner_names()}") from None
-    module, _, cls = target.partition(":")
-    try:
-        return getattr(importlib.import_module(module), cls)
-    except AttributeError:
-        raise ValueError(f"planner {name!r}: {module} has no {cls!r} (registered as {target!r})") from None
+def register(name: str, target: Any, registry: PlannerRegistry | None = None) -> None:
+    """Add a planner (``"module:Class"`` or the class) under ``name`` to ``registry`` (default: the
+    suite's, :data:`REGISTRY`; a probe goes into a registry of its own)."""
+    _registry(registry).register(name, target)
+
+
+def planner_names(registry: PlannerRegistry | None = None) -> list[str]:
+    """Every planner name of ``registry`` (default: the suite's: built-in, registered, and from plugins)."""
+    return _registry(registry).names()
+
+
+def planner_class(name: str, registry: PlannerRegistry | None = None) -> type:
+    """The class of the planner ``name`` in ``registry`` (default: the suite's)."""
+    return _registry(registry).planner_class(name)
 
 
 def split_specs(items: typing.Iterable[str]) -> list[str]:
@@ -129,22 +240,9 @@ def _coerce(value: Any, kind: Any, where: str) -> Any:
     return value
 
 
-def make_config(name: str, overrides: dict[str, Any] | None = None) -> Any:
+def make_config(name: str, overrides: dict[str, Any] | None = None, registry: PlannerRegistry | None = None) -> Any:
     """The planner's config dataclass with ``overrides`` (strings are converted to the field type)."""
-    cls = planner_class(name)
-    Config = getattr(cls, "Config", None)
-    if not (isinstance(Config, type) and dataclasses.is_dataclass(Config)):
-        raise ValueError(f"planner {name!r} ({REGISTRY[name]}) has no Config dataclass: a planner class "
-                         "needs one, e.g. 'Config = MyConfig' with @dataclass(frozen=True) class MyConfig "
-                         "(empty if it has no settings; see docs/planners.md)")
-    overrides = dict(overrides or {})
-    hints = typing.get_type_hints(Config)
-    fields = {f.name for f in dataclasses.fields(Config)}
-    unknown = set(overrides) - fields
-    if unknown:
-        raise ValueError(f"planner {name!r} has no setting {sorted(unknown)}: valid are {sorted(fields)}")
-    values = {k: _coerce(v, hints[k], f"{name}.{k}") for k, v in overrides.items()}
-    return Config(**values)
+    return _registry(registry).make_config(name, overrides)
 
 
 def is_reference(spec: str) -> bool:
@@ -158,12 +256,13 @@ def view_for(planner: Any, env: Any) -> RobotView:
 
     Raises:
         ValueError: a planner that asks to read the truth (``reads_truth``) but is not one of
-            :data:`REFERENCE_PLANNERS` registered here (a plugin cannot grant itself the truth).
+            :data:`REFERENCE_PLANNERS` as :data:`BUILT_IN` names it (neither a plugin nor a planner of a
+            local registry can grant itself the truth).
     """
     if not getattr(planner, "reads_truth", False):
         return RobotView(env)
     name = getattr(planner, "name", "?")
-    target = REGISTRY.get(name, "")
+    target = BUILT_IN.get(name, "")
     module, _, cls = target.partition(":")
     own = (name in REFERENCE_PLANNERS and type(planner).__module__ == module
            and type(planner).__name__ == cls)
@@ -173,13 +272,12 @@ def view_for(planner: Any, env: Any) -> RobotView:
     return TruthView(env)
 
 
-def make_planner(spec: str, **overrides: Any):
-    """A planner from ``"name[:key=value,...]"``; keyword overrides win over the spec's."""
-    name, spec_overrides = parse_spec(spec)
-    cls = planner_class(name)
-    return cls(make_config(name, {**spec_overrides, **overrides}))
+def make_planner(spec: str, *, registry: PlannerRegistry | None = None, **overrides: Any):
+    """A planner from ``"name[:key=value,...]"`` of ``registry`` (default: the suite's); keyword overrides
+    win over the spec's."""
+    return _registry(registry).make_planner(spec, **overrides)
 
 
-__all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "TruthView", "REGISTRY", "REFERENCE_PLANNERS",
-           "ENTRY_POINT_GROUP", "register", "is_reference", "view_for", "planner_names", "planner_class",
-           "split_specs", "parse_spec", "make_config", "make_planner"]
+__all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "TruthView", "BUILT_IN", "REGISTRY",
+           "REFERENCE_PLANNERS", "ENTRY_POINT_GROUP", "PlannerRegistry", "register", "is_reference", "view_for",
+           "planner_names", "planner_class", "split_specs", "parse_spec", "make_config", "make_planner"]

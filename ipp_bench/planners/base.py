@@ -20,36 +20,13 @@ from .. import metrics as M
 from ..belief import GPBelief, error_states
 from ..belief_window import WindowBelief
 from ..config import IPPConfig
+from ..gains import TIE_RTOL, beats, first_best  # noqa: F401  (the planners' argmax and comparison, here for plugins)
 from ..mission import fits_budget, leg_length, leg_samples
 from ..roadmap import Roadmap
 from ..sensor import Observation, Sensor, stack
 
 
-#: scores closer than this, relative to the best, are a tie: a mirror-image pair of legs scores the same
-#: up to the last bits, and which bits those are depends on the CPU's BLAS kernels (AVX2 or AVX-512)
-TIE_RTOL = 1e-9
-
-
-def first_best(scores: np.ndarray, rtol: float = TIE_RTOL) -> int:
-    """The index of the best score, ties (within ``rtol`` of the best) going to the lowest index.
-
-    ``np.argmax`` on scores that tie exactly in exact arithmetic picks whichever the floating-point
-    rounding of this machine favours, so the same seed flew other paths on other CPUs; this rule
-    makes the choice the same on every machine. -inf (masked) entries are never picked unless all are.
-    """
-    scores = np.asarray(scores, dtype=np.float64).reshape(-1)
-    best = scores.max()
-    if not np.isfinite(best):
-        return int(np.argmax(scores))
-    return int(np.flatnonzero(scores >= best - rtol * abs(best))[0])
-
-
-def beats(a: float, b: float, rtol: float = TIE_RTOL) -> bool:
-    """``a > b`` by more than a tie (:data:`TIE_RTOL` relative): the same answer on every CPU."""
-    return bool(a > b + rtol * max(abs(a), abs(b))) if np.isfinite(b) else bool(a > b)
-
-
-def stacked_leg(view: "RobotView", node: int, action: int) -> tuple | None:
+def stacked_leg(view: RobotView, node: int, action: int) -> tuple | None:
     """The read-outs of the roadmap leg from ``node`` to its neighbour number ``action`` as the mission
     would take them, stacked into one ``(cells, W, var)`` (:func:`~ipp_bench.sensor.stack`); None where
     the camera sees nothing on the leg."""

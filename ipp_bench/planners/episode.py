@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..limits import MAX_DECISIONS
-from . import make_planner, view_for
+from . import PlannerRegistry, make_planner, view_for
 
 
 @dataclass
@@ -87,15 +87,16 @@ class EpisodeResult:
         return out
 
 
-def start_episode(env, planner, seed: int, options: dict | None = None):
+def start_episode(env, planner, seed: int, options: dict | None = None, registry: PlannerRegistry | None = None):
     """Reset ``env`` and ``planner`` for episode ``seed``, as :func:`fly_episode` does before its
-    first decision; returns (planner, first observation).
+    first decision; returns (planner, first observation). A spec is built from ``registry`` (default:
+    the suite's).
 
     A leaderboard calls it once per task and planner before its first episode, so that what an
     episode's start refuses (a budget that pays for no first move, a checkpoint whose inputs do not
     fit the task) is refused before anything is written.
     """
-    agent = make_planner(planner) if isinstance(planner, str) else planner
+    agent = make_planner(planner, registry=registry) if isinstance(planner, str) else planner
     obs, _ = env.reset(seed=int(seed), options=options)
     agent.reset(view_for(agent, env), int(seed))
     return agent, obs
@@ -103,7 +104,8 @@ def start_episode(env, planner, seed: int, options: dict | None = None):
 
 def fly_episode(env, planner, seed: int, *, options: dict | None = None,
                 on_reset: Callable[[Any], None] | None = None,
-                on_decision: Callable[[Decision], None] | None = None) -> EpisodeResult:
+                on_decision: Callable[[Decision], None] | None = None,
+                registry: PlannerRegistry | None = None) -> EpisodeResult:
     """Fly one episode of ``planner`` on ``env``.
 
     Args:
@@ -114,11 +116,13 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
         options: ``env.reset`` options (e.g. ``{"start_node": 3}``).
         on_reset: called with the env after the reset, before the first decision.
         on_decision: called with every :class:`Decision`, after it was carried out.
+        registry: where a spec's planner is looked up (default: the suite's; a probe's own
+            :class:`~ipp_bench.planners.PlannerRegistry`).
 
     Raises:
         RuntimeError: the planner made :data:`MAX_DECISIONS` decisions without ending the episode.
     """
-    agent, obs = start_episode(env, planner, seed, options)
+    agent, obs = start_episode(env, planner, seed, options, registry)
     label = planner if isinstance(planner, str) else agent.name
     if on_reset is not None:
         on_reset(env)

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..belief import LegBatch
-from .base import GraphPlanner, first_best, stacked_leg
+from ..gains import first_best
+from .base import GraphPlanner, stacked_leg
 
 
 @dataclass(frozen=True)

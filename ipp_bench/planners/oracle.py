@@ -11,8 +11,9 @@ the tiny gains of short legs over it beat every leg into empty ground, and a pat
 is never reached (measured on ``Hotspots30Eval-v2``: stuck at 18 % for 60 s on seeds where greedy
 reaches 48 %). So the oracle scores, besides its neighbours' legs, every roadmap node above a true
 ROI cell as a target: the ROI trace reduction of one look there per second of the quickest flight
-to it along the roadmap (by the mission's clock), and flies the first leg of that path when a
-target beats every neighbour. It is the same criterion, gain per second of flight, over a larger
+to it along the roadmap (by the mission's clock; :class:`~ipp_bench.gains.LookBatch`,
+:func:`~ipp_bench.gains.far_move`), and flies the first leg of that path when a target beats every
+neighbour. It is the same criterion, gain per second of flight, over a larger
 set of moves; it remains myopic (one look at the target, no plan beyond it), so its row indicates
 the room that knowing where the ROI lies opens above greedy, not an upper bound.
 """
@@ -23,8 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import first_best
-from .far import far_move
+from ..gains import LookBatch, far_move, first_best
 from .greedy import GreedyPlanner
 
 
@@ -32,45 +32,6 @@ from .greedy import GreedyPlanner
 class OracleConfig:
     """No settings: score = (Tr_ROI(P) - Tr_ROI(P+)) / flight time over the true ROI, for the
     neighbours' legs and for one look at every node above a true ROI cell."""
-
-
-class LookBatch:
-    """Single read-outs (one per target node), each on its own cells, padded for batched algebra.
-
-    Unlike :class:`~ipp_bench.belief.LegBatch` (one union of cells for all legs, right for the
-    neighbours of one node), each look keeps its own few cells, so looks spread over the whole map
-    cost what their own cells cost.
-    """
-
-    def __init__(self, observations):
-        m = max(o.weights.shape[0] for o in observations)
-        c = max(o.cells.size for o in observations)
-        self.cells = np.zeros((len(observations), c), dtype=np.int64)  # padding: cell 0 with weight 0
-        self.W = np.zeros((len(observations), m, c))
-        self.var = np.ones((len(observations), m))  # padding rows: unit variance, zero weight
-        for j, o in enumerate(observations):
-            rows, q = o.weights.shape
-            self.cells[j, :q] = o.cells
-            self.W[j, :rows, :q] = o.weights
-            self.var[j, :rows] = o.var
-
-    def trace_reductions(self, cov: np.ndarray, roi: np.ndarray) -> np.ndarray:
-        """(b,) Tr(P - P+) over the cells ``roi`` (bool mask) of each look alone.
-
-        With S = H P H^T + R, the reduction is sum over ROI columns r of (H P)_r^T S^-1 (H P)_r
-        = sum(S^-1 * H Q H^T) with Q = P[:, roi] P[roi, :]: one product over the whole map, then
-        each look reads its own few cells of P and Q.
-        """
-        n = cov.shape[0]
-        if getattr(self, "_n", None) != n:
-            self._n, self._flat = n, self.cells[:, :, None] * n + self.cells[:, None, :]
-        P_roi = cov[:, roi]
-        Q = P_roi @ P_roi.T
-        Wt = self.W.transpose(0, 2, 1)
-        S = self.W @ cov.ravel()[self._flat] @ Wt
-        idx = np.arange(S.shape[1])
-        S[:, idx, idx] += self.var
-        return (np.linalg.inv(S) * (self.W @ Q.ravel()[self._flat] @ Wt)).sum(axis=(1, 2))
 
 
 class OraclePlanner(GreedyPlanner):

@@ -1,13 +1,14 @@
-"""The attention policy of the paper: network, SB3 policy, checkpoints, training.
+"""The attention policy of the paper: network, features, SB3 policy, checkpoints, planner.
 
 - :mod:`~ipp_bench.policies.network`: the encoder / pointer-decoder network (torch only);
+- :mod:`~ipp_bench.policies.features`: the look-gain node feature the network reads;
 - :mod:`~ipp_bench.policies.checkpoint`: the small checkpoint format and the shipped checkpoint;
 - :mod:`~ipp_bench.policies.sb3`: ``AttentionPolicy`` for ``sb3_contrib.MaskablePPO``;
-- :mod:`~ipp_bench.policies.vec`: the training vec env (workers, positional encoding held by the policy);
-- :mod:`~ipp_bench.policies.train`: ``ipp-bench train`` (behaviour-cloning warm start + MaskablePPO).
+- :mod:`~ipp_bench.policies.planner`: the ``attention`` planner.
 
-Importing this package needs torch only; the SB3 policy and the training code need the
-``[train]`` extra (stable-baselines3, sb3-contrib).
+Training (``ipp-bench train``) lives in :mod:`ipp_bench.train`, above this package: nothing here
+imports it. Importing this package needs torch only; the SB3 policy needs the ``[train]`` extra
+(stable-baselines3, sb3-contrib).
 """
 
 try:

@@ -38,7 +38,8 @@ def _cpu_state(net: AttentionNet) -> dict[str, torch.Tensor]:
     return {k: v.detach().to("cpu", torch.float32).clone() for k, v in net.state_dict().items()}
 
 
-def save_checkpoint(net: AttentionNet | AttentionEnsemble, path: str | Path, meta: dict[str, Any] | None = None) -> Path:
+def save_checkpoint(net: AttentionNet | AttentionEnsemble, path: str | Path,
+                    meta: dict[str, Any] | None = None) -> Path:
     """Write ``net`` (float32, CPU; an ensemble as its members) to ``path`` and its description to
     ``path.with_suffix('.json')``."""
     path = Path(path)
@@ -82,7 +83,7 @@ def load_checkpoint(path: str | Path | None = None,
     if path.suffix == ".zip":
         raise CheckpointError(
             f"checkpoint {path} is an SB3 model archive; expected {expected}. Export one with "
-            f"`python -m ipp_bench.policies.train --export {path}` (writes {path.with_suffix('.pt')})")
+            f"`ipp-bench train --export {path}` (writes {path.with_suffix('.pt')})")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:  # noqa: BLE001 - any unreadable file gets the same message

@@ -23,11 +23,6 @@ Architecture:
   neighbours gives one logit per neighbour, ``10 tanh(q.k / sqrt(d))``; masked neighbours get
   ``-inf`` (zero probability).
 
-With ``NetConfig.rate_skip`` (v1.1 checkpoints) the last node feature of each neighbour is greedy's
-score of that neighbour over the best one, and the pointer adds ``alpha x`` it to its logit, alpha
-learned; W^Q of the pointer starts at zero, so the untrained network decides as greedy does and
-training learns where to deviate (:mod:`ipp_bench.policies.features`).
-
 Exact shortcuts (tested against :meth:`AttentionEncoder.encode_all`, the plain full layer):
 
 - with one encoder layer the decoder reads the encoder output of only the current node and its k
@@ -53,9 +48,6 @@ import torch.nn.functional as F
 from torch import nn
 
 NEG_INF = float("-inf")
-#: the planners whose score a ``rate_skip`` network's rate feature can hold
-#: (:func:`ipp_bench.policies.features.neighbour_rates`)
-SKIP_TEACHERS = ("greedy", "far")
 MASKED_LOGIT = -1e8  # finite stand-in for -inf where SB3 needs finite logits (as MaskableCategorical)
 
 
@@ -69,9 +61,6 @@ class NetConfig:
     n_heads: int = 4  # [-] heads of the encoder and decoder attention
     ff_dim: int = 512  # [-] hidden width of the feed-forward sublayers
     tanh_clip: float = 10.0  # [-] C in C tanh(u) of the pointer logits
-    rate_skip: bool = False  # add alpha x (the last node feature of each neighbour) to its logit
-    rate_skip_init: float = 20.0  # [-] alpha at start (20: a neighbour at 0.9 x the best rate is 7x less likely)
-    skip_teacher: str = "greedy"  # whose score the rate feature holds: greedy's, or far (greedy with far targets)
     invariant: bool = False  # node features that mean the same on every map (features.invariant_features)
 
     def __post_init__(self) -> None:
@@ -84,21 +73,11 @@ class NetConfig:
                 f"NetConfig.embed_dim = {self.embed_dim} is invalid: expected a multiple of "
                 f"n_heads = {self.n_heads}"
             )
-        if not isinstance(self.rate_skip, bool):
-            raise ValueError(f"NetConfig.rate_skip = {self.rate_skip!r} is invalid: expected true or false")
-        if self.rate_skip and self.node_dim < 2:
-            raise ValueError(f"NetConfig.rate_skip needs the rate as an extra node feature: node_dim = "
-                             f"{self.node_dim} is invalid, expected >= 2")
         if not isinstance(self.invariant, bool):
             raise ValueError(f"NetConfig.invariant = {self.invariant!r} is invalid: expected true or false")
-        if self.invariant and (self.rate_skip or self.node_dim != 6):
-            raise ValueError(f"NetConfig.invariant needs node_dim = 6 without rate_skip (x, y, z, mean, std, look "
-                             f"gain): node_dim = {self.node_dim}, rate_skip = {self.rate_skip}")
-        if self.skip_teacher not in SKIP_TEACHERS:
-            raise ValueError(f"NetConfig.skip_teacher = {self.skip_teacher!r} is invalid: expected one of "
-                             f"{', '.join(SKIP_TEACHERS)}")
-        if not (math.isfinite(self.rate_skip_init) and self.rate_skip_init > 0):
-            raise ValueError(f"NetConfig.rate_skip_init = {self.rate_skip_init!r} is invalid: expected a number > 0")
+        if self.invariant and self.node_dim != 6:
+            raise ValueError(f"NetConfig.invariant needs node_dim = 6 (x, y, z, mean, std, look gain): "
+                             f"node_dim = {self.node_dim}")
         if not self.tanh_clip > 0:
             raise ValueError(f"NetConfig.tanh_clip = {self.tanh_clip!r} is invalid: expected > 0")
 
@@ -107,11 +86,27 @@ class NetConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> NetConfig:
+        """The config of ``d`` (a checkpoint's ``net_config``). The keys of :data:`INERT_FIELDS` are
+        accepted at their value there (they change nothing) and refused, in one line, at any other."""
+        d = dict(d)
+        for name, inert in INERT_FIELDS.items():
+            if name in d:
+                value = d.pop(name)
+                if value != inert:
+                    raise ValueError(f"NetConfig.{name} = {value!r} is not supported: ipp-bench's network "
+                                     f"{INERT_FIELDS_WHY}; expected {name} = {inert!r} or no {name}")
         known = {f for f in cls.__dataclass_fields__}
         unknown = set(d) - known
         if unknown:
             raise ValueError(f"unknown NetConfig fields {sorted(unknown)}; expected a subset of {sorted(known)}")
         return cls(**d)
+
+
+#: ``net_config`` keys a checkpoint may carry at these values, which change nothing: a network that adds
+#: greedy's score of each neighbour to its pointer logits (``rate_skip``), with its initial weight and its
+#: teacher, is not part of the suite
+INERT_FIELDS: dict[str, Any] = {"rate_skip": False, "rate_skip_init": 20.0, "skip_teacher": "greedy"}
+INERT_FIELDS_WHY = "reads no planner's score as an input (rate_skip, rate_skip_init, skip_teacher)"
 
 
 def _split_heads(x: torch.Tensor, n_heads: int) -> torch.Tensor:
@@ -257,13 +252,7 @@ class ContextDecoder(nn.Module):
 
 
 class PointerHead(nn.Module):
-    """Single-head pointer attention: one logit per neighbour, C tanh(q.k / sqrt(d)).
-
-    With ``cfg.rate_skip`` the logit is ``C tanh(q.k / sqrt(d)) + alpha r`` with r each neighbour's
-    rate feature (greedy's score over the best one, :func:`ipp_bench.policies.features.add_rate_feature`)
-    and alpha = exp(log_alpha) learned; W^Q starts at zero, so an untrained network is greedy made
-    soft, and training learns where to deviate from it.
-    """
+    """Single-head pointer attention: one logit per neighbour, C tanh(q.k / sqrt(d))."""
 
     def __init__(self, cfg: NetConfig) -> None:
         super().__init__()
@@ -271,29 +260,16 @@ class PointerHead(nn.Module):
         self.w_k = nn.Linear(cfg.embed_dim, cfg.embed_dim, bias=False)
         self.clip = cfg.tanh_clip
         self.scale = 1.0 / math.sqrt(cfg.embed_dim)
-        if cfg.rate_skip:
-            nn.init.zeros_(self.w_q.weight)
-            self.log_alpha = nn.Parameter(torch.tensor(math.log(cfg.rate_skip_init)))
 
     def forward(
         self, context: torch.Tensor, h_nb: torch.Tensor, mask: torch.Tensor, masked_value: float = NEG_INF,
-        rate: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """Logits (B, k); masked neighbours get ``masked_value``; ``rate`` (B, k) with ``rate_skip``."""
+        """Logits (B, k); masked neighbours get ``masked_value``."""
         q = self.w_q(context).unsqueeze(1)  # (B, 1, d)
         k = self.w_k(h_nb)  # (B, k, d)
         u = (q * k).sum(-1) * self.scale
         logits = self.clip * torch.tanh(u)
-        if rate is not None:
-            logits = logits + self.log_alpha.exp() * rate
         return logits.masked_fill(~mask, masked_value)
-
-
-def neighbour_rate(cfg: NetConfig, node_features: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor | None:
-    """(B, k) the last node feature of each neighbour with ``cfg.rate_skip``, else None."""
-    if not cfg.rate_skip:
-        return None
-    return node_features[..., -1].gather(1, neighbours)
 
 
 class AttentionNet(nn.Module):
@@ -326,8 +302,7 @@ class AttentionNet(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         enc = self.encoder(node_features, pos_encoding, current, neighbours, budget)
         ctx = self.decoder(enc[:, 0], enc[:, 1:], mask)
-        rate = neighbour_rate(self.cfg, node_features, neighbours)
-        return self.pointer(ctx, enc[:, 1:], mask, rate=rate), self.value_head(ctx).squeeze(-1)
+        return self.pointer(ctx, enc[:, 1:], mask), self.value_head(ctx).squeeze(-1)
 
     def forward_obs(self, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Same as forward, from a batched observation dict of tensors (any numeric dtype)."""

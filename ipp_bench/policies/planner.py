@@ -29,11 +29,12 @@ import numpy as np
 
 from ..belief import downdate_inplace, gain_factor
 from ..config import TIME_TOL_S
+from ..gains import LookGain, beats, best_far_target
 from ..mission import fits_budget
-from ..planners.base import GraphPlanner, RobotView, beats, softmax, stacked_leg, without_level
+from ..planners.base import GraphPlanner, RobotView, softmax, stacked_leg, without_level
 
 #: nodes the network attends to by default: all of them up to 30 x 30 (1800), at 128 x 128 (32 768
-#: nodes) the 4096 nearest the UAV, a disc of about 64 m radius (benchmarks/RESULTS.md, issue 20)
+#: nodes) the 4096 nearest the UAV, a disc of about 64 m radius (benchmarks/RESULTS.md)
 DEFAULT_CONTEXT_NODES = 4096
 MIN_CONTEXT_NODES = 64  # [-] a context smaller than this is hardly more than the k neighbours
 CONTEXT_CACHE = 256  # [-] context node sets kept (least recently used dropped), one per current node
@@ -41,7 +42,7 @@ CONTEXT_CACHE = 256  # [-] context node sets kept (least recently used dropped),
 #: (2.7 cells' worth: 1.2 % of it on 15 x 15, 0.3 % on 30 x 30, 0.016 % on 128 x 128) over 4 decisions has
 #: stalled (the network flies back and forth over cells its camera has already pinned, on the deployment
 #: and its twin, or over cells it has mapped, late in a hotspot mission); chosen on validation episodes
-#: (benchmarks/RESULTS.md, issue 17, fifth session)
+#: (benchmarks/RESULTS.md)
 STALL_LEGS = 4
 STALL_CELLS = 2.7
 MAX_SAMPLES = 256  # [-] imagined trajectories per decision, at most
@@ -76,9 +77,9 @@ class AttentionConfig:
     plan_s: float = 30.0  # [s] flight time each imagined trajectory covers, > 0
     # a flight level kept out of the mission's later part (a hand rule, off by default): from mission time
     # avoid_from_s on, the planner never picks a neighbour at altitude avoid_altitude [m] while another
-    # neighbour is affordable (the network, the stall guard and imagined flights alike). 0 = off. Made for
-    # the three-level probe of issue 17, where the network keeps flying the 8 m level late in a hotspot
-    # mission and loses to the 10 m level there (benchmarks/RESULTS.md, issue 17, nineteenth session).
+    # neighbour is affordable (the network, the stall guard and imagined flights alike). 0 = off. For
+    # roadmaps of three flight levels, where a network may keep flying the lowest level late in a hotspot
+    # mission and lose to the middle one there (benchmarks/RESULTS.md).
     avoid_altitude: float = 0.0
     avoid_from_s: float = 0.0  # [s] mission time from which avoid_altitude holds, >= 0
 
@@ -238,9 +239,6 @@ class AttentionPlanner(GraphPlanner):
         # pe_dim is the task's; the node features are checked on the first observation (_check).
         check_feature_dims(self.net.cfg, self.net.cfg.node_dim, view.config.graph.pe_dim,
                            f"attention checkpoint {self._source}")
-        if self.net.cfg.rate_skip and self.net.cfg.skip_teacher == "far":
-            view.require_dense_belief(f"attention ({self._source})", "its rate feature is the far teacher's "
-                                      "score, whose far targets' look gains read the full covariance")
         if self.settings.samples:
             self._check_sampling(view)
         if self.settings.avoid_altitude:
@@ -303,10 +301,10 @@ class AttentionPlanner(GraphPlanner):
         """The network's logits over the k neighbours (masked: -inf); ``source``: whose belief the added
         node features read (default: the view's, the live belief)."""
         if self.net.cfg.node_dim != np.shape(obs["node_features"])[-1]:
-            from .features import extend_observation  # trained with the look-gain (and rate) features
+            from .features import extend_observation  # trained with the look-gain feature
 
             obs = extend_observation(obs, self.view if source is None else source, self.net.cfg.node_dim,
-                                     self.net.cfg.skip_teacher, self.net.cfg.invariant)
+                                     invariant=self.net.cfg.invariant)
         obs = self.context(obs)
         self._check(obs)
         torch = self._torch
@@ -356,16 +354,11 @@ class AttentionPlanner(GraphPlanner):
     # -- trajectory sampling (AttentionConfig.samples) --------------------------------------------------
     def _check_sampling(self, view: RobotView) -> None:
         """Refuse, in one line at reset, what trajectory sampling cannot imagine."""
-        from .features import GAIN_NODE_DIM
-
         view.require_dense_belief("attention:samples", "its imagined flights copy and downdate the full covariance")
         if view.error_states() is not None:
             raise ValueError("attention.samples cannot run on a task whose camera repeats its error (the deployment "
-                             "and its twin): the imagined flights would need the camera-error states too; use samples=0")
-        if self.net.cfg.node_dim > GAIN_NODE_DIM:
-            raise ValueError(f"attention.samples cannot use {self._source}: its {self.net.cfg.node_dim} node inputs "
-                             "include greedy's score of the live belief, which an imagined flight does not have; "
-                             f"expected a checkpoint with at most {GAIN_NODE_DIM} (the belief's alone)")
+                             "and its twin): the imagined flights would need the camera-error states too; "
+                             "use samples=0")
 
     def _leg(self, node: int, action: int):
         """The read-outs of the leg from ``node`` to its neighbour ``action``, stacked (None: it sees nothing)."""
@@ -444,10 +437,11 @@ class AttentionPlanner(GraphPlanner):
 
         A camera that repeats its error (the deployment, its twin) pins the cells it has seen: another
         look there changes nothing, and a network trained where every look still helps can then fly back
-        and forth between two such nodes until the budget is spent (``benchmarks/RESULTS.md``, issue 17,
-        fifth session). The guard sees it in the belief (its total variance stopped falling) and flies the
-        quickest roadmap path to the node whose one look gains most per second of flight (the network's
-        look-gain input over the flight time), then resets its window and hands back to the network.
+        and forth between two such nodes until the budget is spent (``benchmarks/RESULTS.md``). The guard
+        sees it in the belief (its total variance stopped falling) and flies the quickest roadmap path to
+        the node whose one look gains most per second of flight (the network's look-gain input over the
+        flight time, :func:`~ipp_bench.gains.best_far_target`), then resets its window and hands back to
+        the network.
         """
         legs = self.settings.stall_legs
         if not legs:
@@ -468,11 +462,9 @@ class AttentionPlanner(GraphPlanner):
         self._totals.append(float(view.belief.variance.sum()))
         del self._totals[:-(legs + 1)]
         n = view.config.grid.n_cells
-        if not (len(self._totals) > legs and self._totals[0] - self._totals[-1] < self.settings.stall_cells * self._totals[0] / n):
+        stalled = self._totals[0] - self._totals[-1] < self.settings.stall_cells * self._totals[0] / n
+        if not (len(self._totals) > legs and stalled):
             return -1
-        from ..planners.far import best_far_target
-        from .features import LookGain
-
         gains = LookGain.of(view)(view.belief.variance, view.belief_roi(), view.error_states())
         rate, action, path = best_far_target(view, obs, np.arange(view.roadmap.n_nodes),
                                              lambda t, ok: np.where(ok, gains / np.where(ok, t, 1.0), -np.inf),

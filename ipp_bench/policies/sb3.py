@@ -13,7 +13,7 @@ Built on SB3's extension points, without forking any of its code:
 
 The positional encoding is a constant of the roadmap (``GraphIPPEnv`` hands the same (N, P) array
 in every observation). Training passes it once as ``policy_kwargs["pos_encoding"]`` and drops it
-from the observations (:class:`~ipp_bench.policies.vec.DropPosEncoding`): the features extractor
+from the observations (:class:`~ipp_bench.train.vec.DropPosEncoding`): the features extractor
 keeps it as a buffer and attaches it to every batch, so the rollout buffer does not store it per
 step (at 1800 nodes 230 kB of the 275 kB an observation takes) and worker processes do not send
 it. The policy saves it with its constructor arguments; without it, the observation must carry it.
@@ -42,7 +42,6 @@ from ipp_bench.policies.network import (
     ContextDecoder,
     NetConfig,
     PointerHead,
-    neighbour_rate,
     obs_to_inputs,
 )
 
@@ -84,15 +83,14 @@ def _check_obs_space(observation_space: spaces.Space, cfg: NetConfig, pos_encodi
 
 
 class AttentionExtractor(BaseFeaturesExtractor):
-    """Encoder as an SB3 features extractor: (B, (1 + k) d + k) = [h_current, h_neighbours, mask]
-    (and the neighbours' rate feature, k more columns, with ``rate_skip``)."""
+    """Encoder as an SB3 features extractor: (B, (1 + k) d + k) = [h_current, h_neighbours, mask]."""
 
     def __init__(self, observation_space: spaces.Dict, net_config: dict[str, Any] | None = None,
                  pos_encoding: Any = None) -> None:
         cfg = NetConfig.from_dict(net_config or {})
         pe = _as_pos_encoding(pos_encoding)
         k = _check_obs_space(observation_space, cfg, pe)
-        super().__init__(observation_space, features_dim=(1 + k) * cfg.embed_dim + k * (1 + cfg.rate_skip))
+        super().__init__(observation_space, features_dim=(1 + k) * cfg.embed_dim + k)
         self.cfg, self.k = cfg, k
         self.encoder = AttentionEncoder(cfg)
         # Not in the state dict: the policy's constructor arguments carry it (and checkpoints stay as they are).
@@ -104,17 +102,14 @@ class AttentionExtractor(BaseFeaturesExtractor):
             observations = {**observations, "pos_encoding": self.pos_encoding.expand(b, *self.pos_encoding.shape)}
         nf, pe, cur, nb, mask, budget = obs_to_inputs(observations)
         enc = self.encoder(nf, pe, cur, nb, budget)  # (B, 1 + k, d)
-        parts = [enc.flatten(1), mask.to(enc.dtype)]
-        rate = neighbour_rate(self.cfg, nf, nb)
-        return torch.cat(parts if rate is None else [*parts, rate], dim=1)
+        return torch.cat([enc.flatten(1), mask.to(enc.dtype)], dim=1)
 
 
 def _split_features(features: torch.Tensor, k: int, d: int):
-    """[h_current, h_neighbours, mask (, rate)] -> (h_cur, h_nb, mask, rate or None)."""
+    """[h_current, h_neighbours, mask] -> (h_cur, h_nb, mask)."""
     enc = features[:, : (1 + k) * d].reshape(-1, 1 + k, d)
     mask = features[:, (1 + k) * d : (1 + k) * d + k] > 0.5
-    rate = features[:, (1 + k) * d + k :]
-    return enc[:, 0], enc[:, 1:], mask, (rate if rate.shape[1] else None)
+    return enc[:, 0], enc[:, 1:], mask
 
 
 class AttentionDecoderExtractor(nn.Module):
@@ -125,13 +120,12 @@ class AttentionDecoderExtractor(nn.Module):
         self.cfg, self.k = cfg, k
         self.decoder = ContextDecoder(cfg)
         self.latent_dim_vf = cfg.embed_dim
-        self.latent_dim_pi = (1 + k) * cfg.embed_dim + k * (1 + cfg.rate_skip)  # [context, h_nb, mask (, rate)]
+        self.latent_dim_pi = (1 + k) * cfg.embed_dim + k  # [context, h_nb, mask]
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        h_cur, h_nb, mask, rate = _split_features(features, self.k, self.cfg.embed_dim)
+        h_cur, h_nb, mask = _split_features(features, self.k, self.cfg.embed_dim)
         ctx = self.decoder(h_cur, h_nb, mask)
-        parts = [ctx, h_nb.flatten(1), mask.to(ctx.dtype)]
-        latent_pi = torch.cat(parts if rate is None else [*parts, rate], dim=1)
+        latent_pi = torch.cat([ctx, h_nb.flatten(1), mask.to(ctx.dtype)], dim=1)
         return latent_pi, ctx
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
@@ -150,8 +144,8 @@ class PointerActionNet(nn.Module):
         self.pointer = PointerHead(cfg)
 
     def forward(self, latent_pi: torch.Tensor) -> torch.Tensor:
-        ctx, h_nb, mask, rate = _split_features(latent_pi, self.k, self.cfg.embed_dim)
-        return self.pointer(ctx, h_nb, mask, masked_value=MASKED_LOGIT, rate=rate)
+        ctx, h_nb, mask = _split_features(latent_pi, self.k, self.cfg.embed_dim)
+        return self.pointer(ctx, h_nb, mask, masked_value=MASKED_LOGIT)
 
 
 class AttentionPolicy(MaskableActorCriticPolicy):
@@ -180,13 +174,15 @@ class AttentionPolicy(MaskableActorCriticPolicy):
         self.pos_encoding = None if pe is None else pe.numpy()
         k = _check_obs_space(observation_space, NetConfig.from_dict(self.net_config), pe)
         if not isinstance(action_space, spaces.Discrete) or int(action_space.n) != k:
-            raise ValueError(f"AttentionPolicy needs action space Discrete({k}) (one action per neighbour); got {action_space}")
+            raise ValueError(f"AttentionPolicy needs action space Discrete({k}) (one action per neighbour); "
+                             f"got {action_space}")
         kwargs.setdefault("ortho_init", False)  # PyTorch's default init suits attention layers better
         kwargs["features_extractor_class"] = AttentionExtractor
         kwargs["features_extractor_kwargs"] = {"net_config": self.net_config, "pos_encoding": self.pos_encoding}
         kwargs.setdefault("share_features_extractor", True)
         if not kwargs["share_features_extractor"]:
-            raise ValueError("AttentionPolicy shares its encoder between actor and critic (share_features_extractor=True)")
+            raise ValueError("AttentionPolicy shares its encoder between actor and critic "
+                             "(share_features_extractor=True)")
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
 
     def _build_mlp_extractor(self) -> None:

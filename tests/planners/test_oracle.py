@@ -108,21 +108,3 @@ def test_only_the_suites_references_read_the_truth():
 
     with pytest.raises(ValueError, match="only the suite's reference planners"):
         view_for(Sneaky(), env)
-
-
-def test_a_look_batch_is_the_batched_kalman_trace_reduction():
-    """Looks spread over the map, each on its own cells, give the same ROI trace reduction as the
-    dense batch formula (``trace_reductions``, itself tested against the Kalman update)."""
-    from ipp_bench.belief import LegBatch, trace_reductions
-    from ipp_bench.planners.oracle import LookBatch
-    from ipp_bench.sensor import stack
-    env = make_env(TASK)
-    env.reset(seed=3)
-    for _ in range(4):  # a belief that is not the prior
-        env.step(int(np.flatnonzero(env.action_masks())[0]))
-    obs = [env.sensor.observe(env.roadmap.positions[i]) for i in (5, 400, 1000, 1799, 901)]
-    roi = env.mission.eval_roi | env.mission.belief_roi()
-    got = LookBatch(obs).trace_reductions(env.mission.belief.cov, roi)
-    want = trace_reductions(env.mission.belief.cov, LegBatch([stack([o]) for o in obs]), roi)
-    np.testing.assert_allclose(got, want, rtol=1e-10)
-    assert np.all(want > 0)

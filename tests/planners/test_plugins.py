@@ -1,17 +1,28 @@
-"""A planner from another package joins the registry through the ``ipp_bench.planners`` entry point.
+"""A planner from another package joins the registry through the ``ipp_bench.planners`` entry point;
+a probe planner joins a local registry, which the suite's never sees.
 
-The test "installs" a tiny package the way pip leaves one on disk (the module and a ``.dist-info``
-folder with ``entry_points.txt``) in a folder on ``sys.path``, and runs it through the CLI.
+The plugin tests "install" a tiny package the way pip leaves one on disk (the module and a ``.dist-info``
+folder with ``entry_points.txt``) in a folder on ``sys.path``, and run it through the CLI, on a fresh
+suite registry (so the plugin leaves no trace in later tests).
 """
 
 from __future__ import annotations
 
+import re
 import textwrap
+from dataclasses import dataclass
 
+import numpy as np
 import pytest
 
 import ipp_bench.planners as planners
 from ipp_bench.cli import main
+from ipp_bench.envs import make_env
+from ipp_bench.gains import first_best
+from ipp_bench.planners.episode import fly_episode, start_episode
+from ipp_bench.planners.greedy import GreedyPlanner
+
+TASK = "ipp_bench/Grid15Eval-v1"
 
 PLANNER = '''
 from dataclasses import dataclass
@@ -45,8 +56,7 @@ def installed_plugin(tmp_path, monkeypatch):
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: their-planners\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text("[ipp_bench.planners]\ntheirs = their_planners:FirstPlanner\n")
     monkeypatch.syspath_prepend(str(site))
-    monkeypatch.setattr(planners, "_plugins_loaded", False)
-    monkeypatch.setattr(planners, "REGISTRY", dict(planners.REGISTRY))
+    monkeypatch.setattr(planners, "REGISTRY", planners.PlannerRegistry(planners.BUILT_IN, plugins=True))
     yield
     monkeypatch.delitem(__import__("sys").modules, "their_planners", raising=False)
 
@@ -65,3 +75,84 @@ def test_a_plugin_never_replaces_a_built_in_name(installed_plugin, tmp_path):
     info = next(tmp_path.glob("site/*.dist-info"))
     (info / "entry_points.txt").write_text("[ipp_bench.planners]\ngreedy = their_planners:FirstPlanner\n")
     assert planners.planner_class("greedy").__module__ == "ipp_bench.planners.greedy"
+
+
+# -- local registries -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class KnobConfig:
+    power: float = 1.0  # [-] greedy's score raised to this power (1: greedy itself)
+
+
+class KnobGreedy(GreedyPlanner):
+    """A probe: greedy's score to a power, which changes nothing at power 1 (scores are positive)."""
+
+    name = "knob"
+    Config = KnobConfig
+
+    def act(self, obs):
+        scores = self.scores(obs)
+        return first_best(np.where(np.isfinite(scores), np.maximum(scores, 0.0) ** self.settings.power, -np.inf))
+
+
+def _suite_state():
+    return dict(planners.REGISTRY), planners.planner_names()
+
+
+def test_a_probe_in_a_local_registry_flies_and_the_suites_registry_never_sees_it():
+    before = _suite_state()
+    probes = planners.REGISTRY.copy()
+    planners.register("knob", KnobGreedy, registry=probes)
+    assert "knob" in probes.names() and set(planners.planner_names()) < set(probes.names())
+    assert _suite_state() == before
+    with pytest.raises(ValueError, match="unknown planner 'knob'"):
+        planners.make_planner("knob")
+    env = make_env(TASK)
+    greedy = fly_episode(env, "greedy", 3)
+    knob = fly_episode(env, "knob:power=1", 3, registry=probes)  # the suite's planners are there too
+    assert knob.report == greedy.report and knob.decisions == greedy.decisions
+    assert isinstance(planners.make_planner("knob:power=2", registry=probes), KnobGreedy)
+    assert probes.make_planner("knob:power=2").settings == KnobConfig(power=2.0)
+    with pytest.raises(ValueError, match="knob.power = 'high' is invalid: expected a number"):
+        probes.make_planner("knob:power=high")
+    assert _suite_state() == before
+
+
+def test_registries_are_apart_both_ways():
+    a = planners.PlannerRegistry({"greedy": planners.BUILT_IN["greedy"]})
+    b = a.copy()
+    b.register("knob", KnobGreedy)
+    a.register("random", planners.BUILT_IN["random"])
+    assert a.names() == ["greedy", "random"] and b.names() == ["greedy", "knob"]
+    del b["greedy"]
+    assert "greedy" in a and "greedy" not in b
+    assert b["knob"] == f"{__name__}:KnobGreedy" and b.planner_class("knob") is KnobGreedy
+    b["knob"] = "ipp_bench.planners.greedy:GreedyPlanner"  # a target replaces the class
+    assert b.planner_class("knob") is GreedyPlanner
+
+
+def test_a_probe_cannot_grant_itself_the_truth_from_a_local_registry():
+    class Peeker(GreedyPlanner):
+        name = "oracle"
+        reads_truth = True
+
+    probes = planners.PlannerRegistry()
+    probes.register("oracle", Peeker)
+    env = make_env(TASK)
+    with pytest.raises(ValueError, match="only the suite's reference planners"):
+        start_episode(env, "oracle", 0, registry=probes)
+    assert planners.planner_class("oracle").__module__ == "ipp_bench.planners.oracle"
+
+
+@pytest.mark.parametrize("name, target, message", [
+    ("a:b", "x:Y", "planner name 'a:b' is invalid"),
+    ("", "x:Y", "planner name '' is invalid"),
+    ("probe", "no_colon", "planner 'probe': target 'no_colon' is invalid: expected 'module:Class' or a class"),
+    ("probe", 3, "target 3 is invalid"),
+])
+def test_a_bad_registration_is_one_line(name, target, message):
+    probes = planners.PlannerRegistry()
+    with pytest.raises(ValueError, match=re.escape(message)):
+        probes.register(name, target)
+    assert probes.names() == []

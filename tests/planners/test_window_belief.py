@@ -1,4 +1,4 @@
-"""Planners on the window belief (issue 20): one look-gain method on both beliefs, the dense one's numbers
+"""Planners on the window belief: one look-gain method on both beliefs, the dense one's numbers
 unchanged, greedy's scores the dense ones' where both fit, and the planners that need the full covariance
 refusing a window task in one line."""
 
@@ -71,15 +71,6 @@ def test_planners_that_need_the_full_covariance_refuse_a_window_task(planner):
     env = gym.make(TASK, belief="window").unwrapped
     with pytest.raises(ValueError, match=rf"^planner '{planner}' cannot run on {TASK} \(gp.belief = 'window'\): .+"):
         start_episode(env, planner, 0)
-
-
-def test_the_far_teacher_refuses_a_window_task():
-    from ipp_bench.planners.far import far_scores
-
-    env = gym.make(TASK, belief="window").unwrapped
-    obs, _ = env.reset(seed=3)
-    with pytest.raises(ValueError, match=r"planner 'far' cannot run on .*: its far targets"):
-        far_scores(RobotView(env), obs)
 
 
 def test_cmaes_runs_on_the_window_belief():

@@ -44,6 +44,11 @@ CASES = {
     "missing-tensor": (lambda p: p["state_dict"].pop(next(iter(p["state_dict"]))), "missing"),
     "non-finite": (_nan_weight, "non-finite weights (NaN or inf)"),
     "not-a-dict": (lambda p: None, "has format 'list'"),
+    # a network that would add greedy's score to its logits: the suite has no such network
+    "needs-rate_skip": (lambda p: p["net_config"].update(rate_skip=True),
+                        "NetConfig.rate_skip = True is not supported"),
+    "needs-skip_teacher": (lambda p: p["net_config"].update(skip_teacher="far"),
+                           "NetConfig.skip_teacher = 'far' is not supported"),
 }
 
 
@@ -66,6 +71,34 @@ def test_a_malformed_checkpoint_on_the_command_line_is_one_line(tmp_path, capsys
     rc = main(["evaluate", "--task", "Grid15Eval-v1", "--planner", f"attention:checkpoint={path}"])
     err = capsys.readouterr().err
     assert rc == 2 and "state_dict is int" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_shipped_checkpoints_inert_keys_load_as_the_plain_network(tmp_path):
+    """The shipped checkpoint's net_config carries the inert keys at their values: it loads, as the network
+    without them, and a copy saved again no longer writes them."""
+    from ipp_bench.policies.checkpoint import save_checkpoint
+    from ipp_bench.policies.network import INERT_FIELDS, NetConfig
+
+    cfg = _shipped_payload()["net_config"]
+    carried = {k: cfg[k] for k in INERT_FIELDS if k in cfg}
+    assert carried == {k: INERT_FIELDS[k] for k in carried}
+    net, _ = load_checkpoint(SHIPPED_CHECKPOINT)
+    assert net.cfg == NetConfig(**{k: v for k, v in cfg.items() if k not in INERT_FIELDS})
+    again, _ = load_checkpoint(save_checkpoint(net, tmp_path / "again.pt"))
+    assert set(INERT_FIELDS).isdisjoint(torch.load(tmp_path / "again.pt", weights_only=True)["net_config"])
+    for a, b in zip(net.state_dict().values(), again.state_dict().values()):
+        assert torch.equal(a, b)
+
+
+def test_a_checkpoint_that_needs_a_planners_score_as_input_is_one_line_on_the_command_line(tmp_path, capsys):
+    payload = _shipped_payload()
+    payload["net_config"]["rate_skip"] = True
+    path = tmp_path / "rate.pt"
+    torch.save(payload, path)
+    rc = main(["evaluate", "--task", "Grid15Eval-v1", "--planner", f"attention:checkpoint={path}"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "NetConfig.rate_skip = True is not supported" in err and "rate_skip = False" in err
+    assert len(err.strip().splitlines()) == 1
 
 
 @pytest.mark.parametrize("device, message", [

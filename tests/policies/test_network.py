@@ -109,10 +109,25 @@ def test_config_validation_names_the_field():
         NetConfig(embed_dim=130, n_heads=4)
     with pytest.raises(ValueError, match="unknown NetConfig fields"):
         NetConfig.from_dict({"hidden": 3})
-    with pytest.raises(ValueError, match="rate_skip_init = -1"):
-        NetConfig(node_dim=7, rate_skip=True, rate_skip_init=-1.0)
-    with pytest.raises(ValueError, match="rate_skip = 'yes'"):
-        NetConfig(rate_skip="yes")
+    with pytest.raises(ValueError, match="NetConfig.invariant needs node_dim = 6"):
+        NetConfig(node_dim=7, invariant=True)
+
+
+def test_inert_fields_are_accepted_at_their_value_and_refused_at_any_other():
+    """A net_config written with the keys of a network that adds greedy's score to its logits loads as the
+    plain network where they are off, and is refused (one line naming the key and the value it needs)
+    where the network would need them."""
+    from ipp_bench.policies.network import INERT_FIELDS
+
+    base = {"node_dim": 6, "embed_dim": 16, "n_heads": 2, "ff_dim": 32, "invariant": True}
+    assert NetConfig.from_dict({**base, **INERT_FIELDS}) == NetConfig.from_dict(base)
+    assert set(INERT_FIELDS).isdisjoint(NetConfig().to_dict())  # never written again
+    for name, value in (("rate_skip", True), ("rate_skip_init", 5.0), ("skip_teacher", "far")):
+        with pytest.raises(ValueError) as err:
+            NetConfig.from_dict({**base, **INERT_FIELDS, name: value})
+        msg = str(err.value)
+        assert f"NetConfig.{name} = {value!r} is not supported" in msg and f"{INERT_FIELDS[name]!r}" in msg
+        assert "\n" not in msg
 
 
 def test_gradients_reach_every_parameter():

@@ -11,7 +11,7 @@ import ipp_bench.envs  # noqa: F401
 from ipp_bench.planners.episode import fly_episode
 from ipp_bench.policies.features import gain_feature_wrapper
 from ipp_bench.policies.network import NetConfig
-from ipp_bench.policies.warmstart import BCDataset, collect_episodes, make_expert
+from ipp_bench.train.warmstart import BCDataset, collect_episodes, make_expert
 
 TASK = "ipp_bench/Hotspots15Eval-v2"
 

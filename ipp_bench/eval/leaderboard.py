@@ -25,7 +25,8 @@ from ..data import OutputWriteError
 from ..envs import load_task, short_task_id
 from .executors import JobError, JobFailed, default_backend, make_executor
 from .plan import EpisodeJob, Plan, report_times
-from .results import ResultsStore
+from .aggregate import POWER_HALF_WIDTH
+from .results import ResultsStore, copy_published
 from .runner import run_episode
 
 
@@ -137,7 +138,8 @@ class _Progress:
 def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None, workers: int | None = None,
                     address: str | None = None, progress: bool | None = None, command: str | None = None,
                     report: bool = True, reference: str | None = "greedy",
-                    log: Callable[[str], None] = print, rerun: Sequence[str] = ()) -> Summary:
+                    log: Callable[[str], None] = print, rerun: Sequence[str] = (),
+                    power: float | None = POWER_HALF_WIDTH) -> Summary:
     """Run the episodes of ``plan`` that ``out_dir`` lacks, then write the report.
 
     Args:
@@ -154,6 +156,11 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
         rerun: planners of ``plan`` whose rows in ``out_dir`` are dropped and flown again (a
             retrained checkpoint's, say): the folder then holds what ``command`` gives today, with
             every other row kept.
+        power: the half-width target [points] of the report's power rule (None: no power section).
+
+    A plan paired with a published board (:func:`~ipp_bench.eval.plan.against_plan`) flies only its
+    own planners; the board's results.csv is copied into ``out_dir`` (never written to) and its rows
+    join the report, marked as published.
 
     Raises:
         ResultsMismatchError: ``out_dir`` holds results of other arguments, is locked or unwritable.
@@ -164,6 +171,9 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
         OutputWriteError: a file could not be written (a full disk), naming it; finished episodes are kept.
     """
     t0 = time.perf_counter()
+    if plan.against is not None and Path(out_dir).resolve() == Path(plan.against["folder"]).resolve():
+        raise ValueError(f"--out {out_dir} is the published board itself: pairing with it never writes there; "
+                         "pass another --out DIR")
     if backend is None:
         backend = default_backend(workers)
     with ResultsStore(out_dir, plan, command, rerun) as store:
@@ -199,11 +209,17 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
                 executor.close(abort=aborted)
         store.finalize()
         files = [store.csv_path, store.run_json]
+        published = None
+        if plan.against is not None:
+            published = copy_published(plan, out_dir)
+            files.append(published)
         if report:
             from .report import write_report
 
             files += write_report(store.csv_path, out_dir, tasks=plan.tasks, planners=plan.planners,
-                                  command=command, quick=store.quick, reference=reference, log=log)
+                                  command=command, quick=store.quick, reference=reference, log=log,
+                                  published_csv=published,
+                                  published_from=plan.against["folder"] if plan.against else None, power=power)
     wall = time.perf_counter() - t0
     return Summary(Path(out_dir), len(jobs), skipped, len(todo), wall, files)
 

@@ -1,27 +1,41 @@
-"""The leaderboard's report: a markdown table in the layout of the paper's Table I, and PNG plots.
+"""The leaderboard's report: the aggregate over the tasks, a markdown table in the layout of the
+paper's Table I, paired comparisons, the power rule, and PNG plots.
 
-Everything is computed from ``results.csv`` alone (:func:`write_report`), so a report can be made
-again from a results file at any time. Every cell is the mean over episodes with a 95% percentile
-bootstrap interval (:func:`bootstrap_ci`: ``scipy.stats.bootstrap``, 2000 resamples, fixed seed,
-so the same CSV always gives the same report; with one episode there is no interval, and the
-report says so). The best mean per task and column is in bold: the highest reduction, the lowest
-runtime per decision (means equal at the printed precision are all bold).
+Everything is computed from ``results.csv`` alone (:func:`write_report`; in a folder paired with a
+published board, with that board's rows beside it), so a report can be made again from a results
+file at any time. Every cell is the mean over episodes with a 95% percentile bootstrap interval
+(:func:`bootstrap_ci`: ``scipy.stats.bootstrap``, 2000 resamples, fixed seed, so the same CSV
+always gives the same report; with one episode there is no interval, and the report says so). The
+best mean per task and column is in bold: the highest reduction, the lowest runtime per decision
+(means equal at the printed precision are all bold).
+
+The report opens with the aggregate over the tasks (:func:`aggregate_section`, numbers from
+:mod:`ipp_bench.eval.aggregate`): each planner's interquartile mean of the normalised score (the
+share of the way from ``random`` to ``oracle`` per task and report time) with its stratified
+bootstrap interval and rank, ties shown; the performance profile; the probability of improvement
+of each planner over each other. A quick board says there that its intervals are wide.
 
 The paired comparison (:func:`paired_table`) sets each planner against a reference planner
 (``--reference``, default ``greedy``) on the same episodes: per task and report time, the mean
-difference of the reduction, its 95% paired bootstrap interval and the episodes won.
+difference of the reduction, its 95% paired bootstrap interval and the episodes won. Planners
+flown against a published board are also set against each of its planners (:func:`versus_table`);
+the published rows are marked. The power rule (:func:`power_section`) gives, per task and report
+time, the sd of the paired differences, the half-width reached and the episodes a paired interval
+within +-3 points (``--power``) needs.
 
 Rows of the suite's reference planners that read the truth (:data:`~ipp_bench.planners.REFERENCE_PLANNERS`,
-the ``oracle``) are shown apart, below a marker row, and never bold: they show the room that
-knowing the true ROI opens, not a result a robot can reach. When one ran, a second paired table
-gives every planner's distance to it.
+the ``oracle``) are shown apart, below a marker row, and never bold or ranked: they show the room
+that knowing the true ROI opens, not a result a robot can reach. When one ran, a second paired
+table gives every planner's distance to it.
 
 Files written:
 
 ``leaderboard.md``
-    rows = (task, planner), columns = uncertainty reduction and RMSE reduction at each report time
-    and the runtime per decision (the mean of each episode's mean decision time); then the paired
-    comparison with the reference planner, and the absolute values at the end of the mission.
+    the aggregate; rows = (task, planner), columns = uncertainty reduction and RMSE reduction at
+    each report time and the runtime per decision (the mean of each episode's mean decision time);
+    then the paired comparisons, the power rule, and the absolute values at the end of the mission.
+``performance_profile.png``
+    per planner, the fraction of episodes whose normalised score is above tau, with a 95% band.
 ``curves_<task>.png``
     ROI trace and ROI RMSE over mission time per planner: mean with a shaded 95% band.
 ``runtime_per_decision.png``
@@ -34,7 +48,6 @@ markdown alone, with a note naming the extra that adds the plots.
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections import defaultdict
 from collections.abc import Callable, Sequence
@@ -42,18 +55,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from ..data import write_atomically
 from ..envs import short_task_id
 from ..mission import REPORT_KEYS
 from ..planners import is_reference
-from .results import read_results
+from . import aggregate as agg_stats
+from .aggregate import BOOTSTRAP_METHOD, BOOTSTRAP_SEED, LEVEL, N_RESAMPLES, POWER_HALF_WIDTH, bootstrap_ci
+from .results import PUBLISHED_CSV, read_results
 
-N_RESAMPLES = 2000
-LEVEL = 0.95
-BOOTSTRAP_SEED = 0
-BOOTSTRAP_METHOD = "percentile"
 DEFAULT_REFERENCE = "greedy"
 NO_INTERVAL = "no interval: 1 episode"
 #: the marker row above the reference rows of the table
@@ -61,30 +71,7 @@ REFERENCE_MARKER = "*reference, knows the true ROI (not a planner a robot can ru
 
 REDUCTIONS = (("uncertainty_reduction_pct", "Uncertainty reduction"), ("rmse_reduction_pct", "RMSE reduction"))
 CURVES = (("trace_roi", "ROI trace of the covariance"), ("rmse_roi", "ROI RMSE"))
-
-
-# scipy >= 1.15 names the generator ``rng``, older releases ``random_state``
-_RNG_ARG = "rng" if "rng" in inspect.signature(stats.bootstrap).parameters else "random_state"
-
-
-def bootstrap_ci(values: Sequence[float], n_resamples: int = N_RESAMPLES, level: float = LEVEL,
-                 seed: int = BOOTSTRAP_SEED) -> tuple[float, float | None, float | None]:
-    """Mean of ``values`` and its bootstrap interval ``(mean, low, high)`` (``scipy.stats.bootstrap``,
-    :data:`BOOTSTRAP_METHOD`, seeded: reproducible).
-
-    One value has no interval: ``(v, None, None)``. Equal values give ``(v, v, v)``.
-    """
-    x = np.asarray(values, dtype=np.float64)
-    if x.size == 0:
-        raise ValueError("bootstrap_ci needs at least one value")
-    mean = float(x.mean())
-    if x.size == 1:
-        return mean, None, None
-    if np.all(x == x[0]):
-        return mean, mean, mean
-    res = stats.bootstrap((x,), np.mean, confidence_level=level, n_resamples=n_resamples,
-                          method=BOOTSTRAP_METHOD, **{_RNG_ARG: np.random.default_rng(seed)})
-    return mean, float(res.confidence_interval.low), float(res.confidence_interval.high)
+PROFILE_PNG = "performance_profile.png"
 
 
 short_task = short_task_id
@@ -94,7 +81,10 @@ class Aggregate:
     """Per-episode values grouped by (task, planner[, time]) from results.csv rows."""
 
     def __init__(self, rows: Sequence[dict[str, Any]], tasks: Sequence[str] | None = None,
-                 planners: Sequence[str] | None = None):
+                 planners: Sequence[str] | None = None, published: Sequence[str] = ()):
+        self.rows = list(rows)
+        #: planners whose rows were copied from a published board (``--against``), not flown here
+        self.published = frozenset(published)
         self.tasks = list(tasks) if tasks else list(dict.fromkeys(r["task"] for r in rows))
         self.planners = list(planners) if planners else list(dict.fromkeys(r["planner"] for r in rows))
         self.values: dict[tuple[str, str, float, str], list[float]] = defaultdict(list)
@@ -177,9 +167,11 @@ def resolve_reference(reference: str, planners: Sequence[str]) -> str | None:
     return named[0] if len(named) == 1 else None
 
 
-def _label(planner: str) -> str:
-    """The method cell: the spec, marked when the planner is a reference that reads the truth."""
-    return f"`{planner}` (reference)" if is_reference(planner) else f"`{planner}`"
+def _label(planner: str, published: frozenset[str] | set[str] = frozenset()) -> str:
+    """The method cell: the spec, marked when the planner is a reference that reads the truth, and
+    when its rows are a published board's."""
+    text = f"`{planner}` (reference)" if is_reference(planner) else f"`{planner}`"
+    return f"{text} (published)" if planner in published else text
 
 
 def ordered(planners: Sequence[str]) -> list[str]:
@@ -187,32 +179,203 @@ def ordered(planners: Sequence[str]) -> list[str]:
     return [p for p in planners if not is_reference(p)] + [p for p in planners if is_reference(p)]
 
 
+def _paired_cell(agg: Aggregate, task: str, planner: str, other: str, t: float, key: str) -> str:
+    """``planner`` minus ``other`` on the seeds both flew: mean [interval], episodes won / paired."""
+    mine, theirs = agg.by_seed(task, planner, t, key), agg.by_seed(task, other, t, key)
+    seeds = sorted(set(mine) & set(theirs))
+    if not seeds:
+        return "–"
+    d = np.array([mine[s] - theirs[s] for s in seeds])
+    mean, low, high = bootstrap_ci(d)
+    won = int(np.sum(d > 0))
+    interval = f"({NO_INTERVAL})" if low is None else f"[{low:+.1f}, {high:+.1f}]"
+    return f"{mean:+.1f} {interval}, won {won}/{len(seeds)}"
+
+
 def paired_table(agg: Aggregate, reference: str, key: str = "uncertainty_reduction_pct") -> str:
     """Each planner minus ``reference`` on the same episodes (seeds), per task and report time:
     mean difference [95% paired bootstrap interval], episodes won / episodes paired."""
+    return _pairs_table(agg, [(p, reference) for p in ordered(agg.planners) if p != reference], key, 0)
+
+
+def versus_table(agg: Aggregate, planner: str, key: str = "uncertainty_reduction_pct") -> str:
+    """``planner`` minus each other planner on the same episodes, per task and report time (the
+    Method column names the other planner)."""
+    return _pairs_table(agg, [(planner, p) for p in ordered(agg.planners) if p != planner], key, 1)
+
+
+def _pairs_table(agg: Aggregate, pairs: Sequence[tuple[str, str]], key: str, named: int) -> str:
+    """Rows ``a - b`` for each pair, labelled by ``pair[named]``."""
     times = agg.all_times()
     header = ["Environment", "Method"] + [f"{t:g} s" for t in times]
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join([":--", ":--"] + ["--:"] * len(times)) + "|"]
     for task in agg.tasks:
         first = True
-        for planner in ordered(agg.planners):
-            if planner == reference or not agg.episodes(task, planner):
+        for a, b in pairs:
+            if not agg.episodes(task, a) or not agg.episodes(task, b):
                 continue
-            row = [f"**{short_task(task)}**" if first else "", _label(planner)]
+            row = [f"**{short_task(task)}**" if first else "", _label((a, b)[named], agg.published)]
             first = False
-            for t in times:
-                mine, ref = agg.by_seed(task, planner, t, key), agg.by_seed(task, reference, t, key)
-                seeds = sorted(set(mine) & set(ref))
-                if not seeds:
-                    row.append("–")
-                    continue
-                d = np.array([mine[s] - ref[s] for s in seeds])
-                mean, low, high = bootstrap_ci(d)
-                won = int(np.sum(d > 0))
-                interval = f"({NO_INTERVAL})" if low is None else f"[{low:+.1f}, {high:+.1f}]"
-                row.append(f"{mean:+.1f} {interval}, won {won}/{len(seeds)}")
+            row += [_paired_cell(agg, task, a, b, t, key) for t in times]
             lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------------------------------
+# the aggregate over the benchmark tasks, and the power rule
+# --------------------------------------------------------------------------------------------------
+def _estimate_cell(e: tuple[float, float, float], digits: int = 2) -> str:
+    return f"{e[0]:.{digits}f} [{e[1]:.{digits}f}, {e[2]:.{digits}f}]"
+
+
+def aggregate_estimates(agg: Aggregate) -> tuple[agg_stats.Board, agg_stats.AggregateEstimates | None]:
+    """The normalised board of ``agg``'s rows and its estimates (None: nothing to aggregate)."""
+    board = agg_stats.normalised_board(agg.rows, planners=agg.planners, tasks=agg.tasks)
+    if not board.blocks or not board.planners:
+        return board, None
+    return board, agg_stats.estimate(board)
+
+
+def aggregate_section(agg: Aggregate, board: agg_stats.Board, est: agg_stats.AggregateEstimates | None,
+                      profile_png: str | None = None) -> str:
+    """The report's opening section: IQM of the normalised score per planner with its interval and
+    rank (ties shown), the performance profile, and the probability of improvement of each pair."""
+    parts = ["## Aggregate over the benchmark tasks", ""]
+    if est is None:
+        parts += ["No aggregate: no planner flew every task." if not board.planners else
+                  "No aggregate: no task and report time could be normalised.", ""]
+        parts += [f"Note: {n}" for n in board.notes] + ([""] if board.notes else [])
+        return "\n".join(parts)
+    tasks = ", ".join(short_task(t) for t in board.tasks)
+    episodes = sorted({len(s) for s in board.seeds})
+    n_text = str(episodes[0]) if len(episodes) == 1 else f"{episodes[0]} to {episodes[-1]}"
+    names = [p for p in ordered(board.planners)]
+    ranked = sorted((p for p in names if p in est.ranks), key=lambda p: (est.ranks[p], -est.iqm[p][0]))
+    refs = [p for p in names if p not in est.ranks]
+    counts = defaultdict(int)
+    for p in ranked:
+        counts[est.ranks[p]] += 1
+    times = board.all_times
+    header = ["Rank", "Method", "IQM, all report times"] + [f"IQM {t:g} s" if i == 0 else f"{t:g} s"
+                                                           for i, t in enumerate(times)]
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["--:", ":--"] + ["--:"] * (len(header) - 2)) + "|"]
+    for p in ranked + refs:
+        if p in est.ranks:
+            rank = f"{est.ranks[p]}{'=' if counts[est.ranks[p]] > 1 else ''}"
+        else:
+            rank = "–"
+        row = [rank, _label(p, agg.published), _estimate_cell(est.iqm[p])]
+        row += [_estimate_cell(est.iqm_by_time[t][p]) for t in times]
+        lines.append("| " + " | ".join(row) + " |")
+    parts += ["\n".join(lines), ""]
+    if profile_png:
+        parts += [f"![performance profile]({profile_png})", ""]
+    parts += [
+        (f"Score: per task and report time, an episode's uncertainty reduction as the share of the way from "
+        f"`{board.lower}` (0) to `{board.upper}` (1), both anchors the means over this board's episodes of that "
+        "task and time (the anchors of a published board stay fixed when a planner is compared against it). "
+        "Raw percentages do not pool: a 15 x 15 map saturates near 97 % while the best planner on a 30 x 30 map "
+        "is below 50 % at 100 s; the normalised score puts every task and time on the scale of the room between "
+        f"flying without a plan and knowing where the region of interest lies. Over {len(board.tasks)} tasks "
+        f"({tasks}) and their report times, {n_text} episodes each."),
+        "",
+        (f"IQM: the interquartile mean (the mean of the middle 50 %) of the scores of every episode at every task "
+        f"and report time; in brackets its {est.level:.0%} stratified bootstrap interval (percentile, "
+        f"{est.n_resamples} resamples, seed {BOOTSTRAP_SEED}): episodes are resampled with replacement within each "
+        "task, the same episodes for every planner and report time (every planner flew the same seeds). Rank: 1 + "
+        "the number of planners whose probability of improvement over this one has an interval above 0.5; planners "
+        "with the same rank are tied (marked =): the data cannot separate them. Definitions as rliable's "
+        "(Agarwal et al. 2021; `ipp_bench.eval.aggregate`)."),
+        "",
+    ]
+    taus = est.taus
+    shown = [t for t in agg_stats.PROFILE_MARKS if np.any(np.isclose(taus, t))]
+    at = {t: int(np.argmin(np.abs(taus - t))) for t in shown}
+    prof = {p: {t: tuple(float(v[at[t]]) for v in est.profile[p]) for t in shown} for p in names}
+    parts += [
+        "Performance profile: the fraction of episodes (over every task and report time) whose score is above "
+        f"tau, with its {est.level:.0%} stratified bootstrap interval"
+        + (f" (the plot `{profile_png}` draws every tau)." if profile_png else "."),
+        "",
+        "| Method | " + " | ".join(f"score > {t:g}" for t in shown) + " |",
+        "|:--|" + "|".join(["--:"] * len(shown)) + "|",
+    ]
+    parts += ["| " + " | ".join([_label(p, agg.published)] + [_estimate_cell(prof[p][t]) for t in shown]) + " |"
+              for p in ranked + refs]
+    parts += [
+        "",
+        ("Probability of improvement P(row > column): per task and report time, the chance that an episode of the "
+        "row planner scores higher than an episode of the column planner (ties count a half; every pair of "
+        "episodes, as rliable's Mann-Whitney estimate), averaged over tasks and report times; in brackets its "
+        f"{est.level:.0%} stratified bootstrap interval. Bold: the interval lies above 0.5 (the row planner is "
+        "ahead); an interval that holds 0.5 leaves the pair tied."),
+        "",
+    ]
+    order = ranked + refs
+    header = ["P(row > column)"] + [f"`{p}`" for p in order]
+    lines = ["| " + " | ".join(header) + " |", "|:--|" + "|".join(["--:"] * len(order)) + "|"]
+    for x in order:
+        row = [_label(x, agg.published)]
+        for y in order:
+            if x == y:
+                row.append("–")
+                continue
+            e = est.poi[(x, y)]
+            cell = _estimate_cell(e)
+            row.append(f"**{cell}**" if e[1] > 0.5 else cell)
+        lines.append("| " + " | ".join(row) + " |")
+    parts += ["\n".join(lines), ""]
+    parts += [f"Note: {n}" for n in board.notes] + ([""] if board.notes else [])
+    return "\n".join(parts)
+
+
+def power_section(agg: Aggregate, reference: str, half_width: float = POWER_HALF_WIDTH) -> str:
+    """The power rule's table: per task and report time, the largest sd of a paired difference
+    (planner minus ``reference``), the episodes, the largest half-width reached and the episodes
+    the rule asks for; then the count per task."""
+    cells = agg_stats.power_rule(agg.rows, reference, half_width)
+    if not cells:
+        return ""
+    by_time: dict[tuple[str, float], list[agg_stats.PowerCell]] = defaultdict(list)
+    for c in cells:
+        by_time[(c.task, c.time_s)].append(c)
+    parts = [
+        f"## Episodes for a ±{half_width:g}-point paired interval (the power rule)",
+        "",
+        (f"For every planner minus `{reference}` ({REDUCTIONS[0][1].lower()}), a task needs "
+        f"n = ceil((1.96 sd / {half_width:g})^2) episodes for a paired {LEVEL:.0%} interval of half-width at "
+        f"most {half_width:g} points, sd the standard deviation of the paired difference over this board's "
+        "episodes; the task's count is the largest over planners and report times. Half-width reached: of the "
+        "paired bootstrap interval above (the larger side). The sd is itself estimated, roughly from few "
+        "episodes: apply the rule again on the bigger board (`ipp-bench power DIR`) and extend it while a "
+        "half-width is above the target (seeds are prefix-stable: only the new episodes fly). The percentile "
+        "bootstrap interval is about sqrt((n - 1) / n) times the normal one, so it reaches the target at n "
+        "episodes or a little before."),
+        "",
+        ("| Environment | Time [s] | Episodes | Largest sd of a paired difference | Largest half-width reached "
+        "| Episodes needed |"),
+        "|:--|--:|--:|--:|--:|--:|",
+    ]
+    last = None
+    for (task, t), cs in by_time.items():
+        sd = max(cs, key=lambda c: c.sd if math.isfinite(c.sd) else -1.0)
+        hw = [c for c in cs if c.half_width is not None]
+        widest = max(hw, key=lambda c: c.half_width) if hw else None
+        need = max(cs, key=lambda c: c.needed)
+        parts.append("| " + " | ".join([
+            f"**{short_task(task)}**" if task != last else "", f"{t:g}", str(max(c.episodes for c in cs)),
+            f"{sd.sd:.1f} (`{sd.planner}`)" if math.isfinite(sd.sd) else "–",
+            f"{widest.half_width:.1f} (`{widest.planner}`)" if widest else f"– ({NO_INTERVAL})",
+            f"{need.needed}"]) + " |")
+        last = task
+    parts += ["", ("| Environment | Episodes flown | Episodes needed | Set by | Every half-width within "
+              f"±{half_width:g} |"), "|:--|--:|--:|:--|:--|"]
+    for task, c in agg_stats.needed_per_task(cells).items():
+        flown = max(x.episodes for x in cells if x.task == task)
+        within = all(x.half_width is not None and x.half_width <= half_width for x in cells if x.task == task)
+        parts.append(f"| **{short_task(task)}** | {flown} | {c.needed} | `{c.planner}` at {c.time_s:g} s | "
+                     f"{'yes' if within else 'no'} |")
+    return "\n".join(parts) + "\n"
 
 
 def markdown_table(agg: Aggregate) -> str:
@@ -236,7 +399,7 @@ def markdown_table(agg: Aggregate) -> str:
         for i, planner in enumerate(planners):
             if is_reference(planner) and (i == 0 or not is_reference(planners[i - 1])):
                 lines.append("| " + " | ".join(["", REFERENCE_MARKER] + [""] * (len(header) - 2)) + " |")
-            row = [f"**{short_task(task)}**" if i == 0 else "", _label(planner)]
+            row = [f"**{short_task(task)}**" if i == 0 else "", _label(planner, agg.published)]
             for key, _ in REDUCTIONS:
                 for t in times:
                     row.append(_cell(agg.stat(task, planner, t, key), _pct, "%", planner in best[(key, t)]))
@@ -257,20 +420,53 @@ def final_table(agg: Aggregate) -> str:
             trace = agg.stat(task, planner, t, "trace_roi")
             rmse = agg.stat(task, planner, t, "rmse_roi")
             lines.append("| " + " | ".join([
-                f"**{short_task(task)}**" if i == 0 else "", _label(planner), f"{t:g}",
+                f"**{short_task(task)}**" if i == 0 else "", _label(planner, agg.published), f"{t:g}",
                 _cell(trace, lambda x: f"{x:.3g}", "", False), _cell(rmse, lambda x: f"{x:.3f}", "", False),
                 str(agg.episodes(task, planner))]) + " |")
     return "\n".join(lines) + "\n"
 
 
+QUICK_NOTE = (
+    "**Quick board**: {n} episodes per task and planner and cheaper look-ahead settings: its intervals are wide, "
+    "and a bootstrap over so few episodes understates even those; it checks a set-up, not a ranking. For numbers "
+    "to quote use the powered boards in "
+    "`baselines/` (`baselines/README.md` lists them), or extend this folder with the episodes the power rule "
+    "below asks for (`--episodes N` with the same command; the first seeds stay the same).")
+
+
 def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = False,
                     plots: Sequence[str] = (), reference: str | None = DEFAULT_REFERENCE,
-                    notes: Sequence[str] = ()) -> str:
+                    notes: Sequence[str] = (), published_from: str | None = None,
+                    power: float | None = POWER_HALF_WIDTH, profile_png: str | None = None,
+                    estimates: tuple[agg_stats.Board, agg_stats.AggregateEstimates | None] | None = None) -> str:
+    """The whole leaderboard.md.
+
+    Args:
+        published_from: the published board whose rows (``agg.published``) were copied in.
+        power: the power rule's half-width target in points (None: no power section).
+        profile_png: the performance-profile plot's file name, shown beside the aggregate.
+        estimates: :func:`aggregate_estimates` of ``agg`` (computed when None).
+    """
     counts = sorted({agg.episodes(t, p) for t in agg.tasks for p in agg.planners if agg.episodes(t, p)})
-    n_text = " to ".join(str(c) for c in (counts[0], counts[-1])) if len(counts) > 1 else str(counts[0] if counts else 0)
+    n_text = (" to ".join(str(c) for c in (counts[0], counts[-1])) if len(counts) > 1
+              else str(counts[0] if counts else 0))
     parts = ["# ipp-bench leaderboard", ""]
     if command:
         parts += [f"Made with `{command}`" + (" (quick mode: few episodes, cheaper look-ahead)." if quick else "."), ""]
+    if quick:
+        parts += [QUICK_NOTE.format(n=n_text), ""]
+    if agg.published:
+        new = [p for p in agg.planners if p not in agg.published]
+        parts += [
+            f"Rows marked (published) are copied from the published board `{published_from or '?'}` "
+            f"(its `results.csv`, kept here as `{PUBLISHED_CSV}`), not flown again; "
+            + (", ".join(f"`{p}`" for p in new) or "no planner")
+            + " flew its tasks, task configurations and episode seeds, so every row pairs with every published "
+            "row episode by episode.", ""]
+    if estimates is None:
+        estimates = aggregate_estimates(agg)
+    parts += [aggregate_section(agg, *estimates, profile_png=profile_png)]
+    parts += ["## Per task", ""]
     legend = (
         f"Mean over {n_text} episodes per task and planner (every planner meets the same episode seeds), "
         f"with the {LEVEL:.0%} {BOOTSTRAP_METHOD} bootstrap interval of the mean in brackets "
@@ -292,14 +488,14 @@ def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = Fa
             parts += [
                 f"## {label}: each planner minus `{ref}`, on the same episodes",
                 "",
-                f"Mean difference in percentage points [{LEVEL:.0%} paired {BOOTSTRAP_METHOD} bootstrap interval], "
-                f"and the episodes where the planner's reduction is higher than `{ref}`'s.",
+                (f"Mean difference in percentage points [{LEVEL:.0%} paired {BOOTSTRAP_METHOD} bootstrap interval], "
+                f"and the episodes where the planner's reduction is higher than `{ref}`'s."),
                 "",
                 paired_table(agg, ref, key),
             ]
     elif reference:
-        parts += [f"No paired comparison: the reference planner `{reference}` is not among the planners "
-                  "(pass --reference SPEC).", ""]
+        parts += [(f"No paired comparison: the reference planner `{reference}` is not among the planners "
+                  "(pass --reference SPEC)."), ""]
     for oracle in truth_refs:
         if oracle == ref or len(agg.planners) < 2:
             continue
@@ -307,12 +503,26 @@ def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = Fa
             parts += [
                 f"## {label}: each planner minus `{oracle}` (the headroom reference), on the same episodes",
                 "",
-                f"How far each planner is from `{oracle}`, which knows the true ROI: mean difference in percentage "
+                (f"How far each planner is from `{oracle}`, which knows the true ROI: mean difference in percentage "
                 f"points [{LEVEL:.0%} paired {BOOTSTRAP_METHOD} bootstrap interval], and the episodes where the "
-                f"planner's reduction is higher than `{oracle}`'s.",
+                f"planner's reduction is higher than `{oracle}`'s."),
                 "",
                 paired_table(agg, oracle, key),
             ]
+    for planner in (p for p in agg.planners if agg.published and p not in agg.published):
+        for key, label in REDUCTIONS:
+            parts += [
+                f"## {label}: `{planner}` minus each other planner, on the same episodes",
+                "",
+                (f"Mean difference in percentage points [{LEVEL:.0%} paired {BOOTSTRAP_METHOD} bootstrap interval], "
+                f"and the episodes where `{planner}`'s reduction is higher than the named planner's."),
+                "",
+                versus_table(agg, planner, key),
+            ]
+    if ref is not None and power is not None:
+        section = power_section(agg, ref, power)
+        if section:
+            parts += [section]
     parts += ["## Absolute values at the end of the mission", "", final_table(agg)]
     if notes:
         parts += [f"Note: {n}" for n in notes] + [""]
@@ -395,26 +605,75 @@ def plot_runtime(agg: Aggregate, path: str | Path) -> Path:
     return path
 
 
+def plot_profile(agg: Aggregate, est: agg_stats.AggregateEstimates, path: str | Path,
+                 lower: str = agg_stats.LOWER_ANCHOR, upper: str = agg_stats.UPPER_ANCHOR) -> Path:
+    """The performance profile: per planner, the fraction of episodes (every task and report time)
+    whose normalised score is above tau, with its stratified bootstrap band (``lower``, ``upper``:
+    the anchors, as the x label names them)."""
+    colours = _colours(agg.planners)
+    fig = _figure(figsize=(8, 4.5), layout="constrained")
+    ax = fig.subplots()
+    for planner in ordered(est.planners):
+        point, low, high = est.profile[planner]
+        dashed = is_reference(planner)
+        label = planner + (" (reference, knows the true ROI)" if dashed else "") \
+            + (" (published)" if planner in agg.published else "")
+        ax.plot(est.taus, point, color=colours[planner], linestyle="--" if dashed else "-", label=label)
+        ax.fill_between(est.taus, low, high, color=colours[planner], alpha=0.2, linewidth=0)
+    ax.set_xlabel(f"normalised score tau (0: {lower}, 1: {upper}, per task and report time)")
+    ax.set_ylabel("fraction of episodes with score > tau")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside right center", fontsize="small")
+    fig.suptitle(f"Performance profile over every task and report time, {est.level:.0%} stratified bootstrap band",
+                 fontsize="medium")
+    path = Path(path)
+    write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    return path
+
+
 def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[str] | None = None,
                  planners: Sequence[str] | None = None, command: str | None = None,
                  quick: bool = False, reference: str | None = DEFAULT_REFERENCE,
-                 log: Callable[[str], None] | None = None) -> list[Path]:
-    """Write ``leaderboard.md``, ``curves_<task>.png`` and ``runtime_per_decision.png`` from a results.csv.
+                 log: Callable[[str], None] | None = None, published_csv: str | Path | None = None,
+                 published_from: str | None = None, power: float | None = POWER_HALF_WIDTH) -> list[Path]:
+    """Write ``leaderboard.md``, ``performance_profile.png``, ``curves_<task>.png`` and
+    ``runtime_per_decision.png`` from a results.csv.
 
     Without matplotlib the plots are left out, with a note in the report (and through ``log``).
+
+    Args:
+        published_csv: a published board's results.csv whose rows join the report, marked
+            (published), before this run's planners (``--against``).
+        published_from: the published board's folder, as the report names it.
+        power: the power rule's half-width target in points (None: no power section).
 
     Returns:
         The paths written.
     """
     out_dir = Path(out_dir)
-    agg = Aggregate(read_results(results_csv), tasks, planners)
+    rows = read_results(results_csv)
+    published: list[str] = []
+    if published_csv is not None:
+        theirs = read_results(published_csv)
+        published = list(dict.fromkeys(r["planner"] for r in theirs))
+        rows = theirs + rows
+        if planners is not None:
+            planners = published + [p for p in planners if p not in published]
+    agg = Aggregate(rows, tasks, planners, published=published)
+    estimates = aggregate_estimates(agg)
     written: list[Path] = []
     notes: list[str] = []
+    profile_png = None
     try:
         import matplotlib  # noqa: F401
     except ImportError:
         notes.append('the plots need matplotlib, which is not installed: pip install "ipp-bench[eval]"')
     else:
+        if estimates[1] is not None:
+            board = estimates[0]
+            written.append(plot_profile(agg, estimates[1], out_dir / PROFILE_PNG, board.lower, board.upper))
+            profile_png = PROFILE_PNG
         for task in agg.tasks:
             if agg.times.get(task):
                 written.append(plot_curves(agg, task, out_dir / f"curves_{short_task(task).replace('/', '_')}.png"))
@@ -424,19 +683,25 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
         for note in notes:
             log(f"note: {note}")
     md = out_dir / "leaderboard.md"
-    text = markdown_report(agg, command, quick, [p.name for p in written], reference, notes)
+    text = markdown_report(agg, command, quick, [p.name for p in written if p.name != PROFILE_PNG], reference,
+                           notes, published_from, power, profile_png, estimates)
     write_atomically(md, lambda tmp: tmp.write_text(text))
     return [md, *written]
 
 
 __all__ = [
-    "Aggregate",
     "DEFAULT_REFERENCE",
+    "Aggregate",
+    "aggregate_estimates",
+    "aggregate_section",
     "bootstrap_ci",
-    "paired_table",
     "markdown_report",
     "markdown_table",
+    "paired_table",
     "plot_curves",
+    "plot_profile",
     "plot_runtime",
+    "power_section",
+    "versus_table",
     "write_report",
 ]

@@ -15,6 +15,9 @@ The folder holds:
     episodes with missing rows are dropped and run again. When every episode is in, the file is
     rewritten sorted (task, planner, seed, time), so its content does not depend on the order in
     which workers finished.
+``published_results.csv``
+    only in a folder paired with a published board (``--against``): a copy of that board's
+    results.csv (whose sha256 run.json records), so the report is made from this folder alone.
 
 Opening the store (a context manager) only reads and locks; nothing is written until
 :meth:`ResultsStore.begin`, so a run that fails before its first episode (no Ray cluster, say)
@@ -24,6 +27,7 @@ leaves no ``run.json`` behind.
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import os
@@ -40,6 +44,8 @@ from .plan import Plan, fingerprint_differences, report_times
 
 RESULTS_CSV = "results.csv"
 RUN_JSON = "run.json"
+#: the copy of a published board's results.csv in a folder paired with it (``--against``)
+PUBLISHED_CSV = "published_results.csv"
 FORMAT_VERSION = 1
 #: fingerprint keys that older folders lack: filled in (with a note) instead of refusing the folder
 ADDED_FINGERPRINT_KEYS = ("planner_fingerprints",)
@@ -199,7 +205,7 @@ class ResultsStore:
         self._lock_fd = fd
 
     def _new_meta(self, created: str | None = None) -> dict[str, Any]:
-        return {
+        meta = {
             "format": FORMAT_VERSION,
             "fingerprint": self.plan.fingerprint(),
             "quick": self.plan.quick,
@@ -211,6 +217,9 @@ class ResultsStore:
             "command": self.command,
             "created": created or time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
+        if self.plan.against is not None:
+            meta["against"] = dict(self.plan.against)
+        return meta
 
     def _check_fingerprint(self) -> None:
         fingerprint = self.plan.fingerprint()
@@ -365,6 +374,27 @@ class ResultsStore:
         return self.plan.quick
 
 
+def copy_published(plan: Plan, out_dir: str | Path) -> Path:
+    """Copy the results.csv of the published board ``plan`` is paired with (:attr:`Plan.against`)
+    into ``out_dir`` as :data:`PUBLISHED_CSV`, checking that it is the file the plan read.
+
+    Raises:
+        ResultsMismatchError: the published results.csv changed since (or is gone).
+    """
+    against = plan.against or {}
+    source = Path(against["folder"]) / RESULTS_CSV
+    try:
+        data = source.read_bytes()
+    except OSError as err:
+        raise ResultsMismatchError(f"cannot read the published {source}: {err.strerror or err}") from None
+    if hashlib.sha256(data).hexdigest() != against["results_sha256"]:
+        raise ResultsMismatchError(f"the published {source} is not the one this folder was paired with (its content "
+                                   "changed): pass a new --out DIR to pair with it as it is now")
+    target = Path(out_dir) / PUBLISHED_CSV
+    write_atomically(target, lambda tmp: tmp.write_bytes(data))
+    return target
+
+
 def _atomic_write(path: Path, text: str) -> None:
     write_atomically(path, lambda tmp: tmp.write_text(text))
     try:  # make the rename itself durable
@@ -379,5 +409,5 @@ def _atomic_write(path: Path, text: str) -> None:
         os.close(dfd)
 
 
-__all__ = ["COLUMNS", "RESULTS_CSV", "RUN_JSON", "TIMING_COLUMNS", "ResultsMismatchError", "ResultsStore",
-           "format_header", "format_rows", "read_results"]
+__all__ = ["COLUMNS", "PUBLISHED_CSV", "RESULTS_CSV", "RUN_JSON", "TIMING_COLUMNS", "ResultsMismatchError",
+           "ResultsStore", "copy_published", "format_header", "format_rows", "read_results"]

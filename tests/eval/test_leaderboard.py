@@ -365,3 +365,33 @@ def test_the_recorded_command_leaves_rerun_out_and_a_bad_rerun_is_one_line(tmp_p
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["ipp-bench: error: --rerun 'greedy' names no planner of this run: valid are ['random']"]
     assert not out.exists()
+
+
+# -- the power rule ---------------------------------------------------------------------------------
+def test_power_prints_the_episodes_each_task_needs(reference_run, capsys):
+    from ipp_bench.cli import main
+    from ipp_bench.eval.aggregate import needed_per_task, power_rule
+
+    out, _ = reference_run
+    assert main(["power", str(out), "--half-width", "2"]) == 0
+    text = capsys.readouterr().out
+    cells = power_rule(read_results(out / RESULTS_CSV), "greedy", 2.0)
+    assert "n = ceil((1.96 sd / 2)^2)" in text
+    for task, cell in needed_per_task(cells).items():
+        assert f"  {task}: {cell.needed} (flown {EPISODES}; set by {cell.planner} at {cell.time_s:g} s)" in text
+    assert main(["power", str(out), "--half-width", "0"]) == 2
+    assert "--half-width 0 is invalid: expected a number of points > 0" in capsys.readouterr().err
+    assert main(["power", str(out), "--reference", "nobody"]) == 2
+    assert "names no planner" in capsys.readouterr().err
+
+
+def test_the_reports_power_target_is_an_argument(reference_copy, capsys):
+    from ipp_bench.cli import main
+
+    argv = ["leaderboard", "--tasks", *TASKS, "--planners", *PLANNERS, "--episodes", str(EPISODES), "--seed", "7",
+            "--env", "budget_s=40", "--env", "report_times=[20, 40]", "--backend", "serial", "--out",
+            str(reference_copy)]
+    assert main([*argv, "--power", "-1"]) == 2
+    assert "--power -1 is invalid" in capsys.readouterr().err
+    assert main([*argv, "--power", "5"]) == 0
+    assert "## Episodes for a ±5-point paired interval" in (reference_copy / "leaderboard.md").read_text()

@@ -69,10 +69,17 @@ def test_report_of_a_run_has_every_planner_and_the_plots(reference_run):
         if p.suffix == ".png":
             data = p.read_bytes()
             assert data[:8] == PNG_MAGIC and len(data) > 10_000
-    md = (out / "leaderboard.md").read_text()
+    text = (out / "leaderboard.md").read_text()
+    opening, md = text.split("## Per task")
+    md, power = md.split("## Episodes for a")
+    md += power[power.index("## Absolute values"):]  # the power section names planners as it needs
+    assert opening.startswith("# ipp-bench leaderboard") and "## Aggregate over the benchmark tasks" in opening
     for planner in PLANNERS:  # two tasks, two tables, and (all but the reference) two paired tables
         assert md.count(f"`{planner}`") == 8  # greedy: its two tables, and named by the paired ones
+        assert f"| `{planner}` | " in opening.split("Performance profile")[0]  # a row of the aggregate table
+    assert "![performance profile](performance_profile.png)" in opening
     assert md.count("**Grid15Eval-v1**") == 4 and "Uncertainty reduction 20 s" in md
+    assert "## Episodes for a ±3-point paired interval" in text
     assert "each planner minus `greedy`, on the same episodes" in md
 
 
@@ -81,8 +88,11 @@ def test_write_report_from_a_csv_alone(tmp_path):
     csv_path.write_text(format_header() + format_rows(synthetic_rows()))
     assert format_header().strip().split(",") == list(COLUMNS)
     written = write_report(csv_path, tmp_path)
-    assert [p.name for p in written] == ["leaderboard.md", "curves_Toy-v0.png", "runtime_per_decision.png"]
+    assert [p.name for p in written] == ["leaderboard.md", "performance_profile.png", "curves_Toy-v0.png",
+                                         "runtime_per_decision.png"]
+    assert "(the plot `performance_profile.png` draws every tau)" in written[0].read_text()
     assert "![runtime_per_decision](runtime_per_decision.png)" in written[0].read_text()
+    assert "![performance_profile]" not in written[0].read_text()  # shown beside the aggregate, not again
 
 
 def test_paired_comparison_against_the_reference():
@@ -134,3 +144,25 @@ def test_the_oracle_row_is_apart_never_bold_and_every_planner_has_its_distance_t
     ref = markdown_report(agg, reference="good")
     assert "each planner minus `good`" in ref and "`oracle` (reference) | +20.0" in ref
     assert "| `bad` | -50.0" in ref.split("minus `oracle`")[1]  # bad's distance to the oracle
+
+
+def test_a_quick_board_says_its_intervals_are_wide_and_points_to_the_powered_boards():
+    from ipp_bench.eval.report import markdown_report
+
+    agg = Aggregate(synthetic_rows())
+    quick = markdown_report(agg, command="ipp-bench leaderboard --quick", quick=True)
+    assert "**Quick board**: 3 episodes per task and planner" in quick and "intervals are wide" in quick
+    assert "powered boards in `baselines/`" in quick and "power rule" in quick
+    assert quick.index("**Quick board**") < quick.index("## Aggregate over the benchmark tasks")
+    assert "Quick board" not in markdown_report(agg, command="ipp-bench leaderboard")
+
+
+def test_published_rows_are_marked_and_the_new_planner_is_set_against_each():
+    from ipp_bench.eval.report import markdown_report
+
+    agg = Aggregate(synthetic_rows(), published=["bad"])
+    md = markdown_report(agg, reference="bad", published_from="baselines/toy")
+    assert "`bad` (published)" in md and "`good` (published)" not in md
+    assert "copied from the published board `baselines/toy`" in md
+    versus = md.split("`good` minus each other planner, on the same episodes")[1]
+    assert "| **Toy-v0** | `bad` (published) | +30.0 [+30.0, +30.0], won 3/3 |" in versus

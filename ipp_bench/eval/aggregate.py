@@ -1,0 +1,479 @@
+"""Aggregate scores over the benchmark tasks, with the definitions of rliable (Agarwal et al. 2021,
+*Deep RL at the edge of the statistical precipice*), and the rule for how many episodes a board needs.
+
+Scores, interval estimates and plots are kept apart, as rliable keeps them: this module computes
+numbers from results.csv rows; :mod:`ipp_bench.eval.report` writes them as markdown and plots.
+
+**Normalised score.** Per task and report time, an episode's uncertainty reduction is turned into
+the share of the way from ``random`` to ``oracle``::
+
+    score = (x - mean_random) / (mean_oracle - mean_random)
+
+with the means over the board's episodes of that task and time (fixed anchors, as rliable's
+Atari scores are normalised by fixed random and human scores). 0 is what flying without a plan
+gets, 1 is what knowing where the region of interest lies gets with greedy's one-step rule (which a
+planner that looks further ahead can exceed). Raw percentages do not pool: a 15 x 15 map saturates
+near 97 % and a 30 x 30 map's best planner is at 46 % after 100 s, so a point means something else
+on each; on the published boards the random-to-oracle span is 28 points or more at every task and
+time, so no task is magnified more than a few times against another. A board without ``random``
+takes 0 % (the prior, no reduction) as the lower anchor, one without ``oracle`` 100 % (a perfect
+belief over the ROI) as the upper one, and the report says so. A task and time whose span is below
+:data:`MIN_SPAN` points is left out, with a note.
+
+**rliable's terms here.** A *run* is an episode (one seed); a *task* is a (benchmark task, report
+time) pair. With ``S`` the scores of every run and task of one planner:
+
+- interquartile mean (IQM): ``scipy.stats.trim_mean(S, 0.25, axis=None)``, the mean of the middle
+  50 % of every run's score on every task, flattened (:func:`iqm`);
+- probability of improvement ``P(X > Y)``: per task ``m``, ``P(X_m > Y_m) + 0.5 P(X_m = Y_m)`` over
+  every pair of an ``X`` run and a ``Y`` run (the Mann-Whitney U statistic over ``n_x n_y``),
+  averaged over tasks (:func:`probability_of_improvement`);
+- performance profile: the fraction of runs (every run of every task) with a score above ``tau``
+  (:func:`performance_profile`, rliable's ``run_score_deviation``).
+
+**Stratified bootstrap.** rliable resamples runs with replacement within each task. Here the
+episodes of a benchmark task are the same seeds for every planner and every report time (one
+episode gives every report time's row), so a resample draws episode indices per benchmark task
+(the stratum) and takes those episodes for every planner and every report time together: the
+intervals keep the pairing of the planners (rliable's independent resampling of ``X`` and ``Y`` for
+the probability of improvement would ignore it and give wider intervals). With one report time per
+task this is rliable's ``StratifiedBootstrap``. Percentile intervals, :data:`N_RESAMPLES` resamples,
+a fixed seed: the same results.csv always gives the same numbers.
+
+**Ties.** A planner's rank is 1 + the number of planners that beat it with a probability of
+improvement whose interval lies above 0.5; planners with the same rank are tied (the data cannot
+separate them). References that read the truth (the ``oracle``) are never ranked.
+
+**Power rule** (:func:`power_rule`). For a paired 95 % interval of "planner minus reference" of
+half-width at most ``h`` points at every report time, a task needs ``n = ceil((1.96 sd / h)^2)``
+episodes, ``sd`` the standard deviation of the paired difference over the board's episodes (the
+largest over planners and report times). Caveats: ``sd`` is itself estimated (a 3-episode board
+gives a rough one: apply the rule again on the bigger board and extend it while a half-width is
+still above ``h``; seeds are prefix-stable, so extending flies only the new episodes); the
+report's percentile bootstrap interval is about ``sqrt((n - 1) / n)`` times the normal one, so it
+reaches ``h`` at ``n`` episodes or a little before.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from ..planners import is_reference, parse_spec
+
+N_RESAMPLES = 2000
+LEVEL = 0.95
+BOOTSTRAP_SEED = 0
+BOOTSTRAP_METHOD = "percentile"
+#: the metric the aggregate normalises and the power rule is stated in
+SCORE_KEY = "uncertainty_reduction_pct"
+LOWER_ANCHOR = "random"
+UPPER_ANCHOR = "oracle"
+#: [points] the lower and upper anchors when the board has no ``random`` / no ``oracle`` rows
+LOWER_DEFAULT, UPPER_DEFAULT = 0.0, 100.0
+#: [points] a task and time whose random-to-oracle span is smaller is left out of the aggregate
+MIN_SPAN = 1.0
+#: the normal quantile of a two-sided 95 % interval, as the power rule states it
+Z95 = 1.96
+#: [points] the default half-width target of the power rule
+POWER_HALF_WIDTH = 3.0
+#: thresholds of the performance profile the report writes out (the plot draws every one)
+PROFILE_MARKS = (0.0, 0.5, 0.75, 0.9, 1.0)
+_BATCH = 250  # resamples per vectorised batch
+_BATCH_VALUES = 4e6  # at most this many pooled scores per batch (bounds the memory of big boards)
+
+# scipy >= 1.15 names the generator ``rng``, older releases ``random_state``
+_RNG_ARG = "rng" if "rng" in inspect.signature(stats.bootstrap).parameters else "random_state"
+
+
+def bootstrap_ci(values: Sequence[float], n_resamples: int = N_RESAMPLES, level: float = LEVEL,
+                 seed: int = BOOTSTRAP_SEED) -> tuple[float, float | None, float | None]:
+    """Mean of ``values`` and its bootstrap interval ``(mean, low, high)`` (``scipy.stats.bootstrap``,
+    :data:`BOOTSTRAP_METHOD`, seeded: reproducible).
+
+    One value has no interval: ``(v, None, None)``. Equal values give ``(v, v, v)``.
+    """
+    x = np.asarray(values, dtype=np.float64)
+    if x.size == 0:
+        raise ValueError("bootstrap_ci needs at least one value")
+    mean = float(x.mean())
+    if x.size == 1:
+        return mean, None, None
+    if np.all(x == x[0]):
+        return mean, mean, mean
+    res = stats.bootstrap((x,), np.mean, confidence_level=level, n_resamples=n_resamples,
+                          method=BOOTSTRAP_METHOD, **{_RNG_ARG: np.random.default_rng(seed)})
+    return mean, float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+# --------------------------------------------------------------------------------------------------
+# rliable's point estimates, on a (runs x tasks) matrix
+# --------------------------------------------------------------------------------------------------
+def iqm(scores: np.ndarray) -> float:
+    """Interquartile mean of every entry (rliable's ``aggregate_iqm``)."""
+    return float(stats.trim_mean(np.asarray(scores, dtype=np.float64), 0.25, axis=None))
+
+
+def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
+    """``P(X > Y)`` for (runs x tasks) matrices ``x`` and ``y`` (rliable's ``probability_of_improvement``):
+    per task, the share of (x run, y run) pairs where x is higher, ties counting a half; averaged over tasks."""
+    x, y = np.atleast_2d(np.asarray(x, dtype=np.float64)), np.atleast_2d(np.asarray(y, dtype=np.float64))
+    if x.shape[1] != y.shape[1]:
+        raise ValueError(f"x has {x.shape[1]} tasks, y {y.shape[1]}")
+    per_task = [_pairwise_wins(x[:, m], y[:, m]).mean() for m in range(x.shape[1])]
+    return float(np.mean(per_task))
+
+
+def _pairwise_wins(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``C[i, j] = 1[x_i > y_j] + 0.5 * 1[x_i == y_j]``."""
+    return (x[:, None] > y[None, :]) + 0.5 * (x[:, None] == y[None, :])
+
+
+def _rank_positions(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``y``'s sorting order, and per ``x_i`` how many sorted ``y`` lie below it and up to it."""
+    order = np.argsort(y, kind="stable")
+    ys = y[order]
+    return order, np.searchsorted(ys, x, side="left"), np.searchsorted(ys, x, side="right")
+
+
+def performance_profile(scores: np.ndarray, taus: Sequence[float]) -> np.ndarray:
+    """Fraction of every run's score on every task above each ``tau`` (rliable's score distribution)."""
+    s = np.asarray(scores, dtype=np.float64).ravel()
+    return np.array([float(np.mean(s > t)) for t in taus])
+
+
+# --------------------------------------------------------------------------------------------------
+# normalised scores of a board
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class Board:
+    """The normalised scores of a board, per benchmark task: ``blocks[k][p, t, e]`` is planner
+    ``planners[p]``'s score at report time ``times[k][t]`` in episode ``seeds[k][e]`` of ``tasks[k]``.
+
+    Attributes:
+        anchors: per (task, time), the (lower, upper) anchor in points.
+        lower, upper: how the anchors were made (a planner spec, or the default's words).
+        notes: what was left out and why.
+    """
+
+    planners: list[str]
+    tasks: list[str]
+    times: list[tuple[float, ...]]
+    seeds: list[tuple[int, ...]]
+    blocks: list[np.ndarray]
+    anchors: dict[tuple[str, float], tuple[float, float]]
+    lower: str
+    upper: str
+    key: str = SCORE_KEY
+    notes: list[str] = field(default_factory=list)
+
+    def matrix(self, planner: str) -> np.ndarray:
+        """The planner's (runs x tasks) matrix as rliable takes it: one column per (task, time),
+        one row per episode (needs the same episode count on every task)."""
+        p = self.planners.index(planner)
+        counts = {len(s) for s in self.seeds}
+        if len(counts) != 1:
+            raise ValueError(f"the tasks have {sorted(counts)} episodes: no rectangular matrix")
+        return np.concatenate([b[p].T for b in self.blocks], axis=1)
+
+    @property
+    def all_times(self) -> list[float]:
+        return sorted({t for ts in self.times for t in ts})
+
+
+def _anchor(planners: Sequence[str], name: str) -> str | None:
+    """The spec of planner ``name`` among ``planners``: the bare name, else its only spec."""
+    if name in planners:
+        return name
+    named = [p for p in planners if parse_spec(p)[0] == name]
+    return named[0] if len(named) == 1 else None
+
+
+def normalised_board(rows: Iterable[dict[str, Any]], planners: Sequence[str] | None = None,
+                     tasks: Sequence[str] | None = None, key: str = SCORE_KEY) -> Board:
+    """Normalised scores (module docstring) of every planner that flew every task, on the
+    episodes every planner flew.
+
+    Args:
+        rows: results.csv rows.
+        planners, tasks: order (default: as they first appear in ``rows``).
+        key: the metric (percentage points).
+    """
+    rows = list(rows)
+    tasks = list(tasks) if tasks else list(dict.fromkeys(r["task"] for r in rows))
+    planners = list(planners) if planners else list(dict.fromkeys(r["planner"] for r in rows))
+    value: dict[tuple[str, str, float, int], float] = {}
+    reported: dict[tuple[str, str, int], set[float]] = defaultdict(set)
+    times: dict[str, set[float]] = defaultdict(set)
+    for r in rows:
+        value[(r["task"], r["planner"], float(r["time_s"]), int(r["seed"]))] = float(r[key])
+        reported[(r["task"], r["planner"], int(r["seed"]))].add(float(r["time_s"]))
+        times[r["task"]].add(float(r["time_s"]))
+    flown: dict[tuple[str, str], set[int]] = defaultdict(set)  # episodes with a row at every report time
+    for (task, planner, seed), ts in reported.items():
+        if ts == times[task]:
+            flown[(task, planner)].add(seed)
+    notes = []
+    tasks = [t for t in tasks if times.get(t)]
+    # the largest (tasks x planners) block where every planner flew every task
+    covered = {p: {t for t in tasks if flown.get((t, p))} for p in planners}
+    best: tuple[int, list[str], list[str]] = (0, [], [])
+    for candidate in [set(tasks), *covered.values()]:
+        with_all = [p for p in planners if candidate <= covered[p]]
+        if len(candidate) * len(with_all) > best[0]:
+            best = (len(candidate) * len(with_all), [t for t in tasks if t in candidate], with_all)
+    _, kept_tasks, kept = best
+    if len(kept_tasks) < len(tasks):
+        notes.append(f"left out of the aggregate (not every planner flew them): "
+                     f"{', '.join(t for t in tasks if t not in kept_tasks)}")
+    if len(kept) < len(planners):
+        notes.append(f"left out of the aggregate (no rows on every task): "
+                     f"{', '.join(p for p in planners if p not in kept)}")
+    tasks, planners = kept_tasks, kept
+    lower, upper = _anchor(planners, LOWER_ANCHOR), _anchor(planners, UPPER_ANCHOR)
+    board = Board(planners, [], [], [], [], {}, lower or f"{LOWER_DEFAULT:g} % (no `{LOWER_ANCHOR}` rows)",
+                  upper or f"{UPPER_DEFAULT:g} % (no `{UPPER_ANCHOR}` rows)", key, notes)
+    if not planners:
+        return board
+    for task in tasks:
+        seeds = sorted(set.intersection(*(flown[(task, p)] for p in planners)))
+        every = set.union(*(flown[(task, p)] for p in planners))
+        if len(seeds) < len(every):
+            notes.append(f"{task}: {len(seeds)} episodes, the ones every planner flew to the end (of {len(every)})")
+        kept_times = []
+        block = []
+        for t in sorted(times[task]):
+            raw = np.array([[value[(task, p, t, s)] for s in seeds] for p in planners])
+            lo = float(raw[planners.index(lower)].mean()) if lower else LOWER_DEFAULT
+            hi = float(raw[planners.index(upper)].mean()) if upper else UPPER_DEFAULT
+            if hi - lo < MIN_SPAN:
+                notes.append(f"{task} at {t:g} s: left out (the anchors {lo:.1f} and {hi:.1f} % are less "
+                             f"than {MIN_SPAN:g} point apart)")
+                continue
+            kept_times.append(t)
+            block.append((raw - lo) / (hi - lo))
+            board.anchors[(task, t)] = (lo, hi)
+        if not kept_times or not seeds:
+            continue
+        board.tasks.append(task)
+        board.times.append(tuple(kept_times))
+        board.seeds.append(tuple(seeds))
+        board.blocks.append(np.stack(block, axis=1))  # (planners, times, episodes)
+    return board
+
+
+# --------------------------------------------------------------------------------------------------
+# interval estimates: the stratified bootstrap over episodes, joint for every planner
+# --------------------------------------------------------------------------------------------------
+Estimate = tuple[float, float, float]  # (point, low, high)
+
+
+@dataclass
+class AggregateEstimates:
+    """Point estimates and percentile intervals of a :class:`Board`.
+
+    Attributes:
+        iqm: per planner, over every task and report time.
+        iqm_by_time: per report time, per planner, over the tasks reporting at that time.
+        poi: per (x, y) planner pair (x != y), ``P(X > Y)``.
+        taus, profile: the performance profile of each planner (point, low, high arrays over ``taus``).
+        ranks: per planner that is not a reference, 1 + the planners that beat it with a
+            probability-of-improvement interval above 0.5.
+    """
+
+    planners: list[str]
+    iqm: dict[str, Estimate]
+    iqm_by_time: dict[float, dict[str, Estimate]]
+    poi: dict[tuple[str, str], Estimate]
+    taus: np.ndarray
+    profile: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
+    ranks: dict[str, int]
+    n_resamples: int
+    level: float
+
+
+def profile_taus(board: Board, n: int = 61) -> np.ndarray:
+    """Thresholds from min(0, lowest score) to max(1, highest score), rounded out to tenths, with
+    the :data:`PROFILE_MARKS` among them."""
+    values = np.concatenate([b.ravel() for b in board.blocks]) if board.blocks else np.zeros(1)
+    lo = min(0.0, math.floor(float(values.min()) * 10) / 10)
+    hi = max(1.0, math.ceil(float(values.max()) * 10) / 10)
+    return np.union1d(np.linspace(lo, hi, n), PROFILE_MARKS)
+
+
+def estimate(board: Board, n_resamples: int = N_RESAMPLES, level: float = LEVEL, seed: int = BOOTSTRAP_SEED,
+             taus: np.ndarray | None = None) -> AggregateEstimates:
+    """IQM, probability of improvement and performance profile of every planner of ``board``, with
+    stratified bootstrap intervals (episodes resampled per task, jointly for every planner and time)."""
+    if not board.blocks or not board.planners:
+        raise ValueError("the board has no scores to aggregate")
+    taus = profile_taus(board) if taus is None else np.asarray(taus, dtype=np.float64)
+    P = len(board.planners)
+    labels = np.concatenate([np.repeat(np.asarray(ts), len(s)) for ts, s in zip(board.times, board.seeds)])
+    all_times = board.all_times
+    pairs = [(a, b) for a in range(P) for b in range(a + 1, P)]
+    # P(X > Y) in a resample with episode counts w: sum_i w_i (W(y < x_i) + 0.5 W(y = x_i)) / n^2, with
+    # W the weight of b's episodes below / equal to x_i: cumulative weights in the order of b's values
+    # (O(n) per resample instead of the n x n table of pairs)
+    sorted_b = [[[_rank_positions(blk[a, t], blk[b, t]) for t in range(blk.shape[1])] for a, b in pairs]
+                for blk in board.blocks]
+    n_columns = sum(blk.shape[1] for blk in board.blocks)
+    batch = max(1, min(_BATCH, int(_BATCH_VALUES // (P * len(labels)))))
+
+    def statistics(indices: list[np.ndarray]):
+        """IQM (all, per time), PoI per pair and profile for R resamples (``indices[k]``: R x n_k)."""
+        r = indices[0].shape[0]
+        pooled = np.concatenate(
+            [blk[:, :, idx].transpose(0, 2, 1, 3).reshape(P, r, -1)  # (P, R, T_k * n_k)
+             for blk, idx in zip(board.blocks, indices)], axis=2)
+        ordered = np.sort(pooled, axis=2)
+        cut = int(0.25 * ordered.shape[2])  # what scipy.stats.trim_mean(x, 0.25) cuts from each end
+        out_iqm = ordered[:, :, cut:ordered.shape[2] - cut].mean(axis=2)  # (P, R)
+        out_time = np.stack([stats.trim_mean(pooled[:, :, labels == t], 0.25, axis=2) for t in all_times])
+        flat = ordered.reshape(P * r, -1)
+        at_most = np.stack([np.searchsorted(row, taus, side="right") for row in flat])
+        out_profile = (1.0 - at_most / flat.shape[1]).reshape(P, r, len(taus))  # (P, R, taus)
+        out_poi = np.zeros((len(pairs), r))
+        rows = np.arange(r)[:, None]
+        for k, idx in enumerate(indices):
+            n = idx.shape[1]
+            w = np.zeros((r, n))
+            np.add.at(w, (rows, idx), 1.0)
+            for q in range(len(pairs)):
+                for order, below, upto in sorted_b[k][q]:
+                    cw = np.concatenate([np.zeros((r, 1)), np.cumsum(w[:, order], axis=1)], axis=1)
+                    less, equal = cw[:, below], cw[:, upto] - cw[:, below]
+                    out_poi[q] += (w * (less + 0.5 * equal)).sum(axis=1) / (n * n)
+        return out_iqm, out_time, out_poi / n_columns, out_profile
+
+    point = statistics([np.arange(len(s))[None, :] for s in board.seeds])
+    rng = np.random.default_rng(seed)
+    draws = [[], [], [], []]
+    done = 0
+    while done < n_resamples:
+        r = min(batch, n_resamples - done)
+        indices = [rng.integers(0, len(s), size=(r, len(s))) for s in board.seeds]
+        for acc, part in zip(draws, statistics(indices)):
+            acc.append(part)
+        done += r
+    boot_iqm, boot_time, boot_poi, boot_profile = (np.concatenate(d, axis=-2 if i == 3 else -1)
+                                                   for i, d in enumerate(draws))
+    alpha = 100 * (1 - level) / 2
+
+    def interval(pt: float, samples: np.ndarray) -> Estimate:
+        lo, hi = np.percentile(samples, [alpha, 100 - alpha])
+        return float(pt), float(lo), float(hi)
+
+    names = board.planners
+    iqm_est = {p: interval(point[0][i, 0], boot_iqm[i]) for i, p in enumerate(names)}
+    by_time = {}
+    for j, t in enumerate(all_times):
+        by_time[t] = {p: interval(point[1][j, i, 0], boot_time[j, i]) for i, p in enumerate(names)}
+    poi = {}
+    for q, (a, b) in enumerate(pairs):
+        pt, lo, hi = interval(point[2][q, 0], boot_poi[q])
+        poi[(names[a], names[b])] = (pt, lo, hi)
+        poi[(names[b], names[a])] = (1 - pt, 1 - hi, 1 - lo)
+    profile = {p: (point[3][i, 0], *np.percentile(boot_profile[i], [alpha, 100 - alpha], axis=0))
+               for i, p in enumerate(names)}
+    ranked = [p for p in names if not is_reference(p)]
+    ranks = {p: 1 + sum(1 for o in ranked if o != p and poi[(o, p)][1] > 0.5) for p in ranked}
+    return AggregateEstimates(list(names), iqm_est, by_time, poi, taus, profile, ranks, n_resamples, level)
+
+
+# --------------------------------------------------------------------------------------------------
+# the power rule
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PowerCell:
+    """One planner minus the reference at one task and report time."""
+
+    task: str
+    time_s: float
+    planner: str
+    episodes: int
+    sd: float  # [points] of the paired difference (ddof 1)
+    half_width: float | None  # [points] of the bootstrap interval reached; None with one episode
+    needed: int  # episodes the rule asks for
+
+
+def episodes_needed(sd: float, half_width: float) -> int:
+    """``ceil((1.96 sd / h)^2)``, at least 2 (one episode has no interval)."""
+    if not half_width > 0:
+        raise ValueError(f"half-width = {half_width!r} is invalid: expected a number of points > 0")
+    return max(2, math.ceil((Z95 * sd / half_width) ** 2 - 1e-9))
+
+
+def paired_differences(rows: Iterable[dict[str, Any]], reference: str, key: str = SCORE_KEY
+                       ) -> dict[tuple[str, float, str], np.ndarray]:
+    """Per (task, time, planner), the planner's value minus ``reference``'s on each seed both flew."""
+    by: dict[tuple[str, str, float], dict[int, float]] = defaultdict(dict)
+    order: dict[tuple[str, float], list[str]] = defaultdict(list)
+    for r in rows:
+        cell = (r["task"], float(r["time_s"]))
+        by[(r["task"], r["planner"], cell[1])][int(r["seed"])] = float(r[key])
+        if r["planner"] not in order[cell]:
+            order[cell].append(r["planner"])
+    out = {}
+    for (task, t), planners in order.items():
+        ref = by.get((task, reference, t))
+        if not ref:
+            continue
+        for p in planners:
+            if p == reference:
+                continue
+            mine = by[(task, p, t)]
+            seeds = sorted(set(mine) & set(ref))
+            if seeds:
+                out[(task, t, p)] = np.array([mine[s] - ref[s] for s in seeds])
+    return out
+
+
+def power_rule(rows: Iterable[dict[str, Any]], reference: str, half_width: float = POWER_HALF_WIDTH,
+               key: str = SCORE_KEY) -> list[PowerCell]:
+    """The power rule (module docstring) for every planner minus ``reference``, task and report time."""
+    cells = []
+    for (task, t, p), d in paired_differences(rows, reference, key).items():
+        sd = float(np.std(d, ddof=1)) if d.size > 1 else float("nan")
+        _, lo, hi = bootstrap_ci(d)
+        reached = None if lo is None else float(max(d.mean() - lo, hi - d.mean()))
+        needed = episodes_needed(sd, half_width) if math.isfinite(sd) else 2
+        cells.append(PowerCell(task, t, p, int(d.size), sd, reached, needed))
+    return cells
+
+
+def needed_per_task(cells: Iterable[PowerCell]) -> dict[str, PowerCell]:
+    """Per task, the cell that asks for the most episodes (the task's count)."""
+    out: dict[str, PowerCell] = {}
+    for c in cells:
+        if c.task not in out or c.needed > out[c.task].needed:
+            out[c.task] = c
+    return out
+
+
+__all__ = [
+    "N_RESAMPLES",
+    "POWER_HALF_WIDTH",
+    "SCORE_KEY",
+    "AggregateEstimates",
+    "Board",
+    "PowerCell",
+    "bootstrap_ci",
+    "episodes_needed",
+    "estimate",
+    "iqm",
+    "needed_per_task",
+    "normalised_board",
+    "paired_differences",
+    "performance_profile",
+    "power_rule",
+    "probability_of_improvement",
+    "profile_taus",
+]

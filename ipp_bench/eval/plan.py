@@ -9,7 +9,7 @@ Episode seeds derive from ``seed`` alone (:func:`episode_seeds`): every planner 
 episodes (field, start, sensor noise), and the first ``n`` seeds stay the same when ``episodes``
 grows, so a rerun with more episodes extends a results folder.
 
-:func:`against_plan` plans new planners on a published board (``--against FOLDER``): its tasks,
+:func:`ipp_bench.eval.against.against_plan` plans new planners on a published board (``--against FOLDER``): its tasks,
 task configurations, environment overrides and seeds, read from its run.json; a configuration or
 seed set that today's suite gives otherwise is refused, naming what differs.
 """
@@ -21,7 +21,6 @@ import hashlib
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -282,7 +281,7 @@ class Plan:
             that changed nothing is no quick run.
         planner_fingerprints: per planner spec, what its decisions depend on beyond the spec
             (:func:`planner_fingerprint`).
-        against: the published board these planners are paired with (:func:`against_plan`):
+        against: the published board these planners are paired with (:func:`ipp_bench.eval.against.against_plan`):
             its ``folder``, ``planners``, ``episodes`` and ``results_sha256``; None for a board of its own.
     """
 
@@ -407,117 +406,6 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
                 quick_changed, fingerprints)
 
 
-@dataclass(frozen=True)
-class PublishedBoard:
-    """A finished leaderboard folder, read from its ``run.json`` and ``results.csv``."""
-
-    folder: str
-    tasks: tuple[str, ...]
-    planners: tuple[str, ...]
-    episodes: int
-    seed: int
-    seeds: tuple[int, ...]
-    env_overrides: dict[str, Any]
-    task_configs: dict[str, Any]
-    seed_scheme: str | None
-    quick: bool
-    results_sha256: str
-
-    def identity(self) -> dict[str, Any]:
-        """What a board paired with it records (:attr:`Plan.against`)."""
-        return {"folder": self.folder, "planners": sorted(self.planners), "episodes": self.episodes,
-                "results_sha256": self.results_sha256}
-
-
-def read_published(folder: str | Path) -> PublishedBoard:
-    """The published board in ``folder`` (``run.json`` and a complete ``results.csv``).
-
-    Raises:
-        ValueError: no such folder, no or an unreadable run.json, no results.csv, or a results.csv
-            that lacks episodes of its run.json (naming how many).
-    """
-    from .results import RESULTS_CSV, RUN_JSON, read_results
-
-    root = Path(folder)
-    run_json, csv_path = root / RUN_JSON, root / RESULTS_CSV
-    if not run_json.is_file() or not csv_path.is_file():
-        raise ValueError(f"--against {folder}: not a leaderboard folder (it needs {RUN_JSON} and {RESULTS_CSV})")
-    try:
-        meta = json.loads(run_json.read_text())
-        fp = meta["fingerprint"]
-        tasks, planners = tuple(meta["tasks"]), tuple(meta["planners"])
-        seeds = tuple(int(s) for s in meta["seeds"])
-        board = PublishedBoard(str(folder), tasks, planners, int(meta.get("episodes") or len(seeds)), int(fp["seed"]),
-                               seeds, dict(fp.get("env_overrides") or {}), dict(fp["task_configs"]),
-                               fp.get("seed_scheme"), bool(meta.get("quick", False)),
-                               hashlib.sha256(csv_path.read_bytes()).hexdigest())
-    except (ValueError, KeyError, TypeError) as err:
-        raise ValueError(f"--against {folder}: {RUN_JSON} is unreadable ({type(err).__name__}: {err})") from None
-    held = {(r["task"], r["planner"], r["seed"]) for r in read_results(csv_path)}
-    wanted = {(t, p, s) for t in tasks for p in planners for s in seeds}
-    if not wanted <= held:
-        raise ValueError(f"--against {folder}: its {RESULTS_CSV} holds {len(wanted & held)} of the {len(wanted)} "
-                         "episodes its run.json names; complete it first (rerun its command)")
-    return board
-
-
-def against_plan(folder: str | Path, planners: Sequence[str], tasks: Sequence[str] | None = None,
-                 episodes: int | None = None, seed: int | None = None, quick: bool = False,
-                 env_overrides: dict[str, Any] | None = None, log: Callable[[str], None] = print,
-                 check_start: bool = True) -> Plan:
-    """The plan that flies ``planners`` on the published board in ``folder``: its tasks, task
-    configurations, environment overrides and episode seeds, so every new row pairs with every
-    published one.
-
-    ``tasks``, ``episodes``, ``seed`` and ``env_overrides`` may be given only as the board has them.
-
-    Raises:
-        ValueError: naming what differs: an argument given otherwise than the board has it, a task
-            configuration that today's suite gives otherwise (field by field), seeds that today's
-            seed scheme derives otherwise, a planner that is on the board already; or the board's
-            own problems (:func:`read_published`).
-    """
-    board = read_published(folder)
-    name = f"--against {folder}"
-    given = []
-    if tasks is not None:
-        mine = [resolve_task(t) for t in tasks]
-        if set(mine) != set(board.tasks):
-            given.append(f"--tasks {' '.join(mine)}: the board has {' '.join(board.tasks)}")
-    if episodes is not None and episodes != board.episodes:
-        given.append(f"--episodes {episodes}: the board has {board.episodes} per task and planner")
-    if seed is not None and seed != board.seed:
-        given.append(f"--seed {seed}: the board's episode seeds derive from seed {board.seed}")
-    if quick:
-        given.append("--quick: the board decides episodes; name cheaper planner settings in --planners instead")
-    if env_overrides and normalised_overrides(board.tasks, env_overrides) != board.env_overrides:
-        given.append(f"--env {_short(env_overrides)}: the board has {_short(board.env_overrides)}")
-    if given:
-        raise ValueError(f"{name}: " + "; ".join(given) + " (leave these out: the published board decides them)")
-    differences = []
-    if board.seed_scheme not in (None, SEED_SCHEME):
-        differences.append(f"seed scheme: there {board.seed_scheme!r}, now {SEED_SCHEME!r}")
-    for t in board.tasks:
-        if t not in board.task_configs:
-            differences.append(f"{t}: the board recorded no configuration")
-            continue
-        differences += [f"{t} {line}" for line in
-                        config_differences(board.task_configs[t], task_config_record(t, board.env_overrides))]
-    if episode_seeds(board.seed, board.episodes) != list(board.seeds):
-        differences.append(f"episode seeds: there {_short(list(board.seeds))}, today's scheme gives "
-                           f"{_short(episode_seeds(board.seed, board.episodes))}")
-    if differences:
-        raise ValueError(f"{name}: the published board was flown on other tasks or episodes than today's suite "
-                         "gives, so new rows would not pair with it:\n" + "\n".join(f"  {d}" for d in differences))
-    plan = make_plan(board.tasks, planners, board.episodes, board.seed, False, board.env_overrides, log=log,
-                     check_start=check_start)
-    clash = [p for p in plan.planners if p in board.planners]
-    if clash:
-        raise ValueError(f"{name}: {', '.join(clash)} is on the board already (its published rows join the report "
-                         "as they are); name planners that are not on it")
-    return dataclasses.replace(plan, quick=board.quick, against=board.identity())
-
-
 def _check_distinct_episodes(task: str, seeds: Sequence[int], env_overrides: dict[str, Any]) -> None:
     """Refuse seeds that play the same episode twice on ``task`` (its ``episode_seeds`` range is
     narrower than the run): repeated episodes would be bootstrapped as independent ones."""
@@ -574,5 +462,5 @@ def describe_quick() -> str:
 
 
 __all__ = ["DEFAULT_EPISODES", "LEADERBOARD_DEFAULTS", "MAX_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES",
-           "EpisodeJob", "Plan", "PublishedBoard", "against_plan", "canonical_spec", "default_planners", "check_episode_starts", "describe_quick",
-           "episode_seeds", "make_plan", "planner_fingerprint", "read_published", "report_times", "resolve_task"]
+           "EpisodeJob", "Plan", "canonical_spec", "default_planners", "check_episode_starts", "describe_quick",
+           "episode_seeds", "make_plan", "planner_fingerprint", "report_times", "resolve_task"]

@@ -9,7 +9,7 @@ import pytest
 from lb_helpers import assert_same_results, results, run_tiny, tiny_plan
 
 from ipp_bench.cli import main
-from ipp_bench.eval.plan import against_plan
+from ipp_bench.eval.against import against_plan
 from ipp_bench.eval.results import PUBLISHED_CSV, RESULTS_CSV, RUN_JSON
 
 NEW = "coverage:overlap=0.5"

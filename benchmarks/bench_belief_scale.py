@@ -1,14 +1,12 @@
-"""The dense GP belief and the windowed one (issue 20) side by side at growing map sizes.
+"""The dense GP belief and the windowed one side by side at growing map sizes.
 
 Prints figures, never pass/fail. Run: ``python benchmarks/bench_belief_scale.py [--sizes 15 30 50 128]
-[--task ipp_bench/Hotspots30Eval-v2] [--alternatives] [--agreement] [--seeds 3] [--flight 3000]``.
+[--task ipp_bench/Hotspots30Eval-v2] [--agreement] [--seeds 3] [--flight 3000]``.
 
 * Speed and memory (every size): the median of a measurement update of one read-out at 8 m and at
   14 m (successive read-outs at random places, so the belief changes), the median of one greedy
   look-gain call (``trace_reductions`` of 20 candidate legs of 3 read-outs each) and the belief's
   memory. The dense belief runs where its covariance is at most ``--dense-max-gb``.
-* ``--alternatives``: the same for the tapered sparse covariance and the cost of an information-form
-  GMRF update (``benchmarks/belief_alternatives.py``).
 * ``--agreement``: the whole read-out sequence of greedy and coverage episodes of
   ``Grid30Eval-v1`` and ``Hotspots30Eval-v2`` replayed into both beliefs (max relative variance
   error, max |mean difference|), greedy's decisions scored with both beliefs (share identical), and
@@ -24,9 +22,7 @@ import argparse
 import os
 import platform
 import resource
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -38,9 +34,6 @@ from ipp_bench.config import GridConfig
 from ipp_bench.envs import make_env, task_config
 from ipp_bench.mission import Mission
 from ipp_bench.sensor import Sensor, stack
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from belief_alternatives import InformationGMRFCost, TaperedSparseBelief  # noqa: E402
 
 AGREEMENT_TASKS = ("ipp_bench/Grid30Eval-v1", "ipp_bench/Hotspots30Eval-v2")
 
@@ -101,45 +94,19 @@ def speed(args, cfg) -> None:
         rows = []
         dense_gb = n * n * 8 / 1e9
         if dense_gb <= args.dense_max_gb:
-            rows.append(("dense GPBelief", lambda: GPBelief.from_grid(
+            rows.append(("dense GPBelief", lambda size=size: GPBelief.from_grid(
                 (size, size), res, gp.length_scale, gp.signal_variance, gp.prior_mean, gp.nugget),
                 lambda bel, bt, r: trace_reductions(bel.cov, bt, r)))
         else:
             print(f"{size:>3}x{size:<4} {'dense GPBelief':<22} skipped: its covariance needs {dense_gb:.1f} GB")
         prior = (res, gp.length_scale, gp.signal_variance, gp.prior_mean, gp.nugget)
         window = WindowBelief.from_grid((2, 2), *prior).window
-        rows.append((f"WindowBelief w={window}", lambda: WindowBelief.from_grid((size, size), *prior), None))
-        if args.alternatives:
-            for theta in args.thetas:
-                rows.append((f"tapered theta={theta:g} m", lambda th=theta: TaperedSparseBelief(
-                    (size, size), res, gp.length_scale, gp.signal_variance, gp.prior_mean, gp.nugget, th),
-                    _tapered_gain))
+        rows.append((f"WindowBelief w={window}", lambda size=size, prior=prior: WindowBelief.from_grid(
+            (size, size), *prior), None))
         for name, make, gain in rows:
             r = bench_belief(make, size, sensor, gp.prior_mean, args.looks, gain)
             print(f"{size:>3}x{size:<4} {name:<22} {r['build_s']:>8.2f} {r['upd8_ms']:>10.3f} "
                   f"{r['upd14_ms']:>11.3f} {r['gain_ms']:>8.3f} {r['mem_mb']:>10.1f}", flush=True)
-        if args.alternatives:
-            g = InformationGMRFCost((size, size), res, gp.length_scale, gp.signal_variance)
-            rng = np.random.default_rng(size)
-            obs = _looks(sensor, size, 8.0, 5, rng)
-            ms = _median_ms(lambda o: g.update_and_variances(o.cells, o.weights, np.zeros(o.m), o.var, o.cells), obs)
-            print(f"{size:>3}x{size:<4} {'GMRF info form':<22} {'':>8} {ms:>10.3f} {'':>11} {'':>8} "
-                  f"{g.nbytes / 1e6:>10.1f}  (update + the footprint's 9-16 variances only)", flush=True)
-
-
-def _tapered_gain(bel, batch, roi):
-    """Look-gain of the tapered belief: the dense formula on its (sparse -> dense) covariance rows."""
-    out = np.zeros(batch.size)
-    P = bel.cov
-    for j, i in enumerate(batch.index):
-        Wj = batch.W[j]
-        rows = np.flatnonzero(np.any(Wj != 0, axis=1))
-        used = np.flatnonzero(np.any(Wj[rows] != 0, axis=0))
-        cells, W = batch.cells[used], Wj[np.ix_(rows, used)]
-        HP = W @ P[cells].toarray()
-        S = HP[:, cells] @ W.T + np.diag(batch.var[j, rows])
-        out[i] = np.einsum("ij,ij->", np.linalg.solve(S, HP[:, roi]), HP[:, roi])
-    return out
 
 
 # -- agreement with the dense belief ----------------------------------------------------------
@@ -186,12 +153,9 @@ def record_episode(task: str, planner: str, seed: int, compare_decisions: bool):
     return batches, same, (env.mission.belief, win)
 
 
-def replay(batches, shape, res, gp, window=None, theta=None):
-    """Replay ``batches`` into a fresh WindowBelief (or TaperedSparseBelief with ``theta``)."""
-    if theta is None:
-        b = WindowBelief.from_grid(shape, res, gp.length_scale, gp.signal_variance, gp.prior_mean, gp.nugget, window)
-    else:
-        b = TaperedSparseBelief(shape, res, gp.length_scale, gp.signal_variance, gp.prior_mean, gp.nugget, theta)
+def replay(batches, shape, res, gp, window):
+    """Replay ``batches`` into a fresh WindowBelief of ``window`` cells."""
+    b = WindowBelief.from_grid(shape, res, gp.length_scale, gp.signal_variance, gp.prior_mean, gp.nugget, window)
     for cells, W, var, z in batches:
         b.update_local(cells, W, z, var)
     return b
@@ -215,18 +179,10 @@ def agreement(args) -> None:
             for seed in range(args.seeds):
                 batches, same, (dense, win) = record_episode(task, planner, seed, compare_decisions=True)
                 same_all += same
-                variants = [("window", w) for w in windows]
-                if args.alternatives:
-                    variants += [("tapered", th) for th in args.thetas]
-                for kind, p in variants:
-                    if kind == "window" and p is None:
-                        b = win  # updated during the episode, in step with the dense belief
-                    elif kind == "window":
-                        b = replay(batches, shape, res, gp, window=p)
-                    else:
-                        b = replay(batches, shape, res, gp, theta=p)
-                    label = (f"window w={b.window}" + (" (default)" if p is None else "") if kind == "window"
-                             else f"tapered theta={p:g} m")
+                for p in windows:
+                    # None: the default window, updated during the episode in step with the dense belief
+                    b = win if p is None else replay(batches, shape, res, gp, p)
+                    label = f"window w={b.window}" + (" (default)" if p is None else "")
                     v, m = errors(b, dense)
                     old = worst.get(label, (0.0, 0.0))
                     worst[label] = (max(old[0], v), max(old[1], m))
@@ -299,8 +255,6 @@ def main() -> None:
     parser.add_argument("--task", default="ipp_bench/Hotspots30Eval-v2", help="task whose prior and camera are used")
     parser.add_argument("--looks", type=int, default=100, help="updates timed per altitude")
     parser.add_argument("--dense-max-gb", type=float, default=1.0, help="largest dense covariance to time [GB]")
-    parser.add_argument("--alternatives", action="store_true", help="also the tapered covariance and the GMRF cost")
-    parser.add_argument("--thetas", type=float, nargs="+", default=[30.0, 60.0], help="taper ranges [m]")
     parser.add_argument("--agreement", action="store_true", help="accuracy against the dense belief")
     parser.add_argument("--windows", type=int, nargs="*", default=[], help="more windows [cells] for --agreement")
     parser.add_argument("--seeds", type=int, default=3, help="episodes per task and planner for --agreement")

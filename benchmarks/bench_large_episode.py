@@ -1,6 +1,6 @@
 """One whole episode of a planner on a large task, in this process: decision times, the mission's
-measurement updates, and the process's peak memory (issue 20's targets at 128 x 128: a greedy decision
-<= 50 ms median, an 8 m update <= 5 ms median, the process peak < 2 GB over a whole episode).
+measurement updates, and the process's peak memory (the targets at 128 x 128: a greedy decision <= 50 ms
+median, an 8 m update <= 5 ms median, the process peak < 2 GB over a whole episode).
 
 Prints figures, never pass/fail. Run in a fresh process (the peak is the process's):
 ``python benchmarks/bench_large_episode.py [--task ipp_bench/Hotspots128Eval-v2] [--planner greedy]

@@ -1,4 +1,4 @@
-"""The roadmap and its Laplacian positional encoding at growing map sizes, dense and sparse (issue 20).
+"""The roadmap and its Laplacian positional encoding at growing map sizes, dense and sparse.
 
 Prints figures, never pass/fail. Run: ``python benchmarks/bench_roadmap_scale.py [--sizes 15 30 50 128]
 [--task ipp_bench/Hotspots30Eval-v2] [--dense-max-nodes 5000]``.

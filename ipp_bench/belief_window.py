@@ -1,4 +1,4 @@
-"""A GP belief for large grids: the covariance kept within a window, updated locally (issue 20).
+"""A GP belief for large grids: the covariance kept within a window, updated locally.
 
 The dense :class:`~ipp_bench.belief.GPBelief` stores the n x n covariance P: 2 GB at 128 x 128
 cells, and a Kalman update costs O(n m q). The Matern 3/2 prior decays with distance (at 3.6
@@ -37,7 +37,8 @@ from scipy.linalg import cho_solve, solve_triangular
 
 from .belief import GPBelief, LegBatch, _as_cov, matern32
 
-WINDOW_LENGTH_SCALES = 4.0  # [-] the window covers this many length scales (prior correlation 0.8 % there)
+WINDOW_LENGTH_SCALES = 4.0  # [-] the window covers this many length scales (prior correlation 0.8 % there;
+# why four: docs/window-belief.md)
 DEFAULT_GROUP_SPAN = 8  # [cells] largest bounding box side of the rows fused in one update
 MASK_CACHE = 32  # window masks kept (one per rectangle shape; 0.6 MB each at w = 12)
 

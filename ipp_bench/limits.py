@@ -10,7 +10,7 @@ env calls it first, before the roadmap is built).
 
 The limits are far above every task of the suite (the largest, 30 x 30 cells, needs ~0.1 GiB for
 its Laplacian and at most a few MiB per leg update) and well below what a workstation has. A
-128 x 128 map (issue 20) passes the roadmap and encoding check (the sparse eigensolver, ~0.2 GB)
+128 x 128 map passes the roadmap and encoding check (the sparse eigensolver, ~0.2 GB)
 and is refused by the dense belief's, which names the scalable belief,
 :class:`ipp_bench.belief_window.WindowBelief`; a task that holds the window belief
 (``gp.belief = "window"``) is checked against the window belief's memory instead.
@@ -151,7 +151,8 @@ def check_sizes(config: IPPConfig) -> None:
         if need > ARRAY_LIMIT_BYTES:
             raise ValueError(
                 f"grid.rows x grid.cols = {grid.rows} x {grid.cols} cells is too large for the window belief: its "
-                f"band of {states} x {(2 * task_window(config.grid, config.gp) + 1) ** 2} covariances needs {_gib(need)} "
+                f"band of {states} x {(2 * task_window(config.grid, config.gp) + 1) ** 2} covariances needs "
+                f"{_gib(need)} "
                 f"(limit {_gib(ARRAY_LIMIT_BYTES)}); lower gp.belief_window or the map's size")
     elif (need := dense_belief_bytes(config)) > ARRAY_LIMIT_BYTES:
         most = _most(lambda n: DENSE_BELIEF_ARRAYS * n**2 * _FLOAT, ARRAY_LIMIT_BYTES)
@@ -181,5 +182,37 @@ def check_sizes(config: IPPConfig) -> None:
             "at this resolution")
 
 
-__all__ = ["ARRAY_LIMIT_BYTES", "DENSE_BELIEF_ARRAYS", "MAX_DECISIONS", "MAX_FLIGHT_CELLS", "belief_states", "check_sizes",
-           "dense_belief_bytes", "encoding_bytes", "leg_update_rows", "roadmap_nodes", "window_belief_bytes"]
+#: [-] float64 arrays of n x n (n cells) that one evaluation of the log marginal likelihood of
+#: ``ipp-bench fit-prior`` holds at once (the kernel's temporaries, K, its Cholesky factor):
+#: tracemalloc's peak of ``gp_fit._lml_and_mean`` is 5.00 n^2 floats on 20 x 20 and 40 x 40 cells
+FIT_ARRAYS = 5
+
+
+def fit_prior_bytes(config: IPPConfig, maps: int) -> int:
+    """[bytes] fitting the prior of ``config``'s field family on ``maps`` maps (:mod:`ipp_bench.gp_fit`):
+    the likelihood's n x n arrays and three copies of the maps."""
+    n = config.grid.n_cells
+    return FIT_ARRAYS * n**2 * _FLOAT + 3 * int(maps) * n * _FLOAT
+
+
+def check_fit_size(config: IPPConfig, maps: int) -> None:
+    """Refuse a prior fit that would not fit in memory, before any map is drawn.
+
+    Raises:
+        ValueError: one line naming the map's size, the memory needed and the limit.
+    """
+    need = fit_prior_bytes(config, maps)
+    if need <= ARRAY_LIMIT_BYTES:
+        return
+    grid, n = config.grid, config.grid.n_cells
+    most = _most(lambda m: FIT_ARRAYS * m**2 * _FLOAT + 3 * int(maps) * m * _FLOAT, ARRAY_LIMIT_BYTES)
+    raise ValueError(
+        f"grid.rows x grid.cols = {grid.rows} x {grid.cols} cells is too large to fit a prior on: the log marginal "
+        f"likelihood of {maps} maps holds {FIT_ARRAYS} covariances of {n} x {n} cells, {_gib(need)} (limit "
+        f"{_gib(ARRAY_LIMIT_BYTES)}, at most {most} cells); fit on a task of the same field family with a smaller "
+        "map")
+
+
+__all__ = ["ARRAY_LIMIT_BYTES", "DENSE_BELIEF_ARRAYS", "FIT_ARRAYS", "MAX_DECISIONS", "MAX_FLIGHT_CELLS",
+           "belief_states", "check_fit_size", "check_sizes", "dense_belief_bytes", "encoding_bytes", "fit_prior_bytes",
+           "leg_update_rows", "roadmap_nodes", "window_belief_bytes"]

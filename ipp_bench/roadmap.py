@@ -7,7 +7,7 @@ so that every decision can change altitude. Edge cost is travel time at the miss
 positional encoding holds the eigenvectors of the normalised graph Laplacian with the smallest
 non-zero eigenvalues, each signed so that its largest-magnitude entry is positive.
 
-Two eigensolvers give the encoding (issue 20): the dense ``scipy.linalg.eigh`` for roadmaps of at
+Two eigensolvers give the encoding: the dense ``scipy.linalg.eigh`` for roadmaps of at
 most :data:`DENSE_ENCODING_MAX_NODES` nodes, which keeps every task of the suite (at most 30 x 30 x 2
 = 1 800 nodes) bit for bit what its committed results were computed with, and above it a sparse
 shift-invert Lanczos (``scipy.sparse.linalg.eigsh`` on a sparse LU of L - sigma I), which builds the
@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from .belief import cell_centres
 from .config import GraphConfig, GridConfig
 
-_CACHE: dict[tuple, "Roadmap"] = {}
+_CACHE: dict[tuple, Roadmap] = {}
 
 #: [-] the most nodes whose encoding the dense eigensolver computes: the suite's largest roadmap
 #: (30 x 30 cells x 2 levels = 1 800 nodes) rounded up to 2^11, a dense Laplacian of 32 MiB and

@@ -132,7 +132,7 @@ def _flown_pair(prior, rng, n_looks, seed):
 
 @pytest.mark.parametrize("prior", ["v1", "v2"])
 def test_agrees_with_dense_gp_after_a_whole_flight(prior):
-    """Issue 20: on 30 x 30, variances within 2 % (relative) and means within 0.01 of the dense GP."""
+    """On 30 x 30, variances within 2 % (relative) and means within 0.01 of the dense GP."""
     _, sv, _, mu = PRIORS[prior]
     dense, win = _flown_pair(prior, np.random.default_rng(3), n_looks=80, seed=1)
     assert dense.variance.min() < 0.2 * sv  # the flight did measure: many cells well below the prior

@@ -74,9 +74,9 @@ def test_laplacian_encoding_is_eigenvectors_with_fixed_sign(roadmap):
     np.testing.assert_array_equal(laplacian_encoding(nb, 32), pe)  # deterministic
 
 
-# -- the encoding at scale (issue 20): dense for the suite's sizes, sparse above ----------------------
-def _encoding_before_issue_20(neighbours, dim):
-    """laplacian_encoding as committed before issue 20, verbatim: the reference of bit-identity."""
+# -- the encoding at scale: dense for the suite's sizes, sparse above ----------------------
+def _dense_encoding_reference(neighbours, dim):
+    """the dense laplacian_encoding, verbatim: the reference of bit-identity."""
     from scipy.linalg import eigh
 
     N = neighbours.shape[0]
@@ -138,7 +138,7 @@ def test_every_task_keeps_its_dense_encoding_bit_for_bit():
 
     sizes = set()
     for spec in TASKS.values():
-        if "large" in spec.tags:  # 128 x 128 (issue 20): the sparse encoding by design, no earlier encoding
+        if "large" in spec.tags:  # 128 x 128: the sparse encoding by design, no earlier encoding
             assert spec.config.grid.n_cells * len(spec.config.graph.altitudes) > DENSE_ENCODING_MAX_NODES
             continue
         c = spec.config
@@ -146,7 +146,7 @@ def test_every_task_keeps_its_dense_encoding_bit_for_bit():
         assert rm.n_nodes <= DENSE_ENCODING_MAX_NODES
         if (c.grid, c.graph) not in sizes:
             sizes.add((c.grid, c.graph))
-            np.testing.assert_array_equal(rm.pos_encoding, _encoding_before_issue_20(rm.neighbours, c.graph.pe_dim))
+            np.testing.assert_array_equal(rm.pos_encoding, _dense_encoding_reference(rm.neighbours, c.graph.pe_dim))
     assert {g.rows for g, _ in sizes} >= {15, 20, 30}
 
 

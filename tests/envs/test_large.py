@@ -1,4 +1,4 @@
-"""The large tasks (issue 20): 128 x 128 cells on the window belief, registered apart from the benchmark.
+"""The large tasks: 128 x 128 cells on the window belief, registered apart from the benchmark.
 
 Each env builds a 32 768-node roadmap (2-4 s), so the tests share one env and fly short budgets.
 """
@@ -26,7 +26,8 @@ def env():
 
 def test_registered_tagged_large_not_benchmark():
     assert {EVAL, TRAIN} <= set(tagged("large"))
-    assert EVAL not in tagged("benchmark") and TRAIN not in tagged("benchmark")  # the default leaderboard leaves them out
+    # the default leaderboard leaves them out
+    assert EVAL not in tagged("benchmark") and TRAIN not in tagged("benchmark")
     assert TRAIN in tagged("train")
     cfg, train = envs.TASKS[EVAL].config, envs.TASKS[TRAIN].config
     assert (cfg.grid.rows, cfg.grid.cols, cfg.grid.resolution) == (128, 128, 2.5)

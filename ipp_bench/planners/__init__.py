@@ -12,7 +12,9 @@ gymnasium and pytest find plugins): a package declaring, in its ``pyproject.toml
 
 is found by name (``ipp-bench leaderboard --planners theirs``) once installed. The class follows
 :class:`~ipp_bench.planners.base.GraphPlanner` or :class:`~ipp_bench.planners.base.ContinuousPlanner`
-and has a ``Config`` dataclass. A built-in name is never replaced by a plugin.
+and has a ``Config`` dataclass. A built-in name is never replaced by a plugin. A plugin whose import,
+``Config`` or constructor raises (or calls ``sys.exit``) is refused in one line naming its entry point,
+what it raised and where (:class:`PlannerError`).
 
 The suite's registry is :data:`REGISTRY`, a :class:`PlannerRegistry`. An experiment's probe planners
 go into a registry of their own, which the suite's never sees::
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import traceback
 import typing
 from collections.abc import Iterator, Mapping, MutableMapping
 from importlib.metadata import entry_points
@@ -66,6 +69,7 @@ class PlannerRegistry(MutableMapping):
     def __init__(self, targets: Mapping[str, Any] | None = None, *, plugins: bool = False) -> None:
         self._targets: dict[str, str] = {}
         self._classes: dict[str, type] = {}  # names registered with a class, not an importable target
+        self._entry_points: set[str] = set()  # names that came from an installed plugin's entry point
         self._plugins_pending = False
         for name, target in (targets or {}).items():
             self.register(name, target)
@@ -76,7 +80,9 @@ class PlannerRegistry(MutableMapping):
         if self._plugins_pending:
             self._plugins_pending = False
             for ep in entry_points(group=ENTRY_POINT_GROUP):
-                self._targets.setdefault(ep.name, ep.value)
+                if ep.name not in self._targets:
+                    self._targets[ep.name] = ep.value
+                    self._entry_points.add(ep.name)
         return self._targets
 
     # -- the mapping ------------------------------------------------------------------------------
@@ -89,6 +95,7 @@ class PlannerRegistry(MutableMapping):
     def __delitem__(self, name: str) -> None:
         del self._loaded()[name]
         self._classes.pop(name, None)
+        self._entry_points.discard(name)
 
     def __iter__(self) -> Iterator[str]:
         return iter(list(self._loaded()))
@@ -112,12 +119,14 @@ class PlannerRegistry(MutableMapping):
         else:
             raise ValueError(f"planner {name!r}: target {target!r} is invalid: expected 'module:Class' or a class")
         self._loaded()[name] = target
+        self._entry_points.discard(name)
 
     def copy(self) -> PlannerRegistry:
         """A local registry with this one's planners (plugins included): what is registered there stays there."""
         out = PlannerRegistry()
         out._targets = dict(self._loaded())
         out._classes = dict(self._classes)
+        out._entry_points = set(self._entry_points)
         return out
 
     # -- building ---------------------------------------------------------------------------------
@@ -135,9 +144,26 @@ class PlannerRegistry(MutableMapping):
             return self._classes[name]
         module, _, cls = target.partition(":")
         try:
-            return getattr(importlib.import_module(module), cls)
+            loaded = importlib.import_module(module)
+        except (Exception, SystemExit) as err:
+            if isinstance(err, ImportError) and self._built_in(name):
+                raise  # the suite's own: its message names the extra to install
+            raise PlannerError(f"{self.describe(name)}: importing {module} raised {what_raised(err)}") from err
+        try:
+            return getattr(loaded, cls)
         except AttributeError:
             raise ValueError(f"planner {name!r}: {module} has no {cls!r} (registered as {target!r})") from None
+
+    def _built_in(self, name: str) -> bool:
+        return name not in self._classes and BUILT_IN.get(name) == self._loaded().get(name)
+
+    def describe(self, name: str) -> str:
+        """Where a planner came from, for messages: ``planner 'theirs' (entry point 'theirs = module:Class' of
+        'ipp_bench.planners')`` for a plugin, else ``planner 'name' (module:Class)``."""
+        target = self._loaded().get(name, "?")
+        if name in self._entry_points:
+            return f"planner {name!r} (entry point '{name} = {target}' of {ENTRY_POINT_GROUP!r})"
+        return f"planner {name!r} ({target})"
 
     def make_config(self, name: str, overrides: dict[str, Any] | None = None) -> Any:
         """The planner's config dataclass with ``overrides`` (strings are converted to the field type)."""
@@ -154,13 +180,47 @@ class PlannerRegistry(MutableMapping):
         if unknown:
             raise ValueError(f"planner {name!r} has no setting {sorted(unknown)}: valid are {sorted(fields)}")
         values = {k: _coerce(v, hints[k], f"{name}.{k}") for k, v in overrides.items()}
-        return Config(**values)
+        try:
+            return Config(**values)
+        except ValueError:
+            raise  # a setting refused, in the config's own words
+        except (Exception, SystemExit) as err:
+            raise PlannerError(f"{self.describe(name)}: its Config raised {what_raised(err)}") from err
 
     def make_planner(self, spec: str, **overrides: Any) -> Any:
         """A planner from ``"name[:key=value,...]"``; keyword overrides win over the spec's."""
         name, spec_overrides = parse_spec(spec)
         cls = self.planner_class(name)
-        return cls(self.make_config(name, {**spec_overrides, **overrides}))
+        config = self.make_config(name, {**spec_overrides, **overrides})
+        try:
+            return cls(config)
+        except ValueError:
+            raise  # a setting refused (a checkpoint that does not load, say), in the planner's own words
+        except (Exception, SystemExit) as err:
+            if isinstance(err, ImportError) and self._built_in(name):
+                raise  # the suite's own: its message names the extra to install
+            raise PlannerError(f"{self.describe(name)}: building it raised {what_raised(err)}") from err
+
+
+class PlannerError(ValueError):
+    """A planner that cannot be loaded, built or started: its import, constructor or ``reset`` raised
+    (or called ``sys.exit``). One line: the planner, where it came from, what it raised and where."""
+
+
+def what_raised(err: BaseException) -> str:
+    """``"RuntimeError: boom (at their_planners/__init__.py:7)"``: an exception in one line, with the
+    innermost source line it came from (``sys.exit(3)`` reads ``SystemExit (sys.exit(3))``)."""
+    text = " ".join(str(err).split()) or "(no message)"
+    if isinstance(err, SystemExit):
+        return f"SystemExit (sys.exit({err.code!r})) (at {_where(err)})"
+    return f"{type(err).__name__}: {text} (at {_where(err)})"
+
+
+def _where(err: BaseException) -> str:
+    if isinstance(err, SyntaxError) and err.filename:
+        return f"{err.filename}:{err.lineno}"
+    frames = [f for f in traceback.extract_tb(err.__traceback__) if not f.filename.startswith("<frozen ")]
+    return f"{frames[-1].filename}:{frames[-1].lineno}" if frames else "?"
 
 
 #: the suite's registry: the built-in planners, then the installed plugins
@@ -212,9 +272,13 @@ def parse_spec(spec: str) -> tuple[str, dict[str, str]]:
     overrides: dict[str, str] = {}
     for item in filter(None, (p.strip() for p in rest.split(","))):
         key, eq, value = item.partition("=")
-        if not eq or not key:
+        if not eq or not key.strip():
             raise ValueError(f"planner spec {spec!r}: {item!r} is not key=value (e.g. 'mcts:simulations=200')")
-        overrides[key.strip()] = value.strip()
+        key = key.strip()
+        if key in overrides:
+            raise ValueError(f"planner spec {spec!r}: setting {key!r} is given twice ({key}={overrides[key]} and "
+                             f"{key}={value.strip()}): give each setting once")
+        overrides[key] = value.strip()
     return name.strip(), overrides
 
 
@@ -279,5 +343,6 @@ def make_planner(spec: str, *, registry: PlannerRegistry | None = None, **overri
 
 
 __all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "TruthView", "BUILT_IN", "REGISTRY",
-           "REFERENCE_PLANNERS", "ENTRY_POINT_GROUP", "PlannerRegistry", "register", "is_reference", "view_for",
+           "REFERENCE_PLANNERS", "ENTRY_POINT_GROUP", "PlannerRegistry", "PlannerError",
+           "what_raised", "register", "is_reference", "view_for",
            "planner_names", "planner_class", "split_specs", "parse_spec", "make_config", "make_planner"]

@@ -12,6 +12,7 @@ whether the budget pays for it, they ask the mission's clock (:meth:`RobotView.l
 
 from __future__ import annotations
 
+import weakref
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
@@ -24,6 +25,9 @@ from ..gains import TIE_RTOL, beats, first_best  # noqa: F401  (the planners' ar
 from ..mission import fits_budget, leg_length, leg_samples
 from ..roadmap import Roadmap
 from ..sensor import Observation, Sensor, stack
+
+#: view -> the env it reads: the one place a view's env is kept (a view holds no reference to it)
+_ENVS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def stacked_leg(view: RobotView, node: int, action: int) -> tuple | None:
@@ -57,57 +61,79 @@ MIN_LEG_M = 1e-6
 class RobotView:
     """What a planner may see of an episode: belief, roadmap, camera model, clock, budget.
 
-    Wraps a :class:`~ipp_bench.envs.graph.GraphIPPEnv` (or subclass) after ``reset``.
+    Wraps a :class:`~ipp_bench.envs.graph.GraphIPPEnv` (or subclass) after ``reset``. The view
+    holds no reference to the env, its mission or anything else from which the ground truth could be
+    reached by following attributes: it has no instance attributes at all (``__slots__``), its
+    methods are plain functions (no closures), and the env it reads is kept in this module's private
+    table (:data:`_ENVS`), keyed by the view. Python has no private memory, so a planner that goes
+    through module internals, ``gc`` or interpreter frames can find anything in its process; the
+    suite's rule is that a planner reads an episode only through its view's public methods, and one
+    that reads the truth otherwise breaks the benchmark's rules.
     """
 
+    __slots__ = ("__weakref__",)
+
     def __init__(self, env):
-        self._env = env
+        _ENVS[self] = env
+
+    def __copy__(self):
+        return self  # a view is a handle on a live episode: a copy is the same view
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def __reduce__(self):
+        raise TypeError(f"a {type(self).__name__} is a handle on a live episode in this process: it cannot be "
+                        "pickled (build the planner in the process that flies the episode)")
 
     # -- static knowledge ------------------------------------------------------------------------
     @property
     def config(self) -> IPPConfig:
-        return self._env.config
+        return _ENVS[self].config
 
     @property
     def roadmap(self) -> Roadmap:
-        return self._env.roadmap
+        return _ENVS[self].roadmap
 
     @property
     def sensor(self) -> Sensor:
-        return self._env.sensor
+        return _ENVS[self].sensor
 
     # -- state -------------------------------------------------------------------------------------
     @property
     def belief(self) -> GPBelief | WindowBelief:
         """The live belief (read it; never update it: that is the mission's job)."""
-        return self._env.mission.belief
+        return _ENVS[self].mission.belief
 
     @property
     def position(self) -> np.ndarray:
-        return self._env.mission.position.copy()
+        return _ENVS[self].mission.position.copy()
 
     @property
     def current_node(self) -> int:
-        return self._env.current_node
+        return _ENVS[self].current_node
 
     @property
     def time_s(self) -> float:
-        return self._env.mission.time_s
+        return _ENVS[self].mission.time_s
 
     @property
     def remaining_s(self) -> float:
-        return self._env.mission.remaining_s
+        return _ENVS[self].mission.remaining_s
 
     def action_mask(self) -> np.ndarray:
-        return self._env.action_masks()
+        return _ENVS[self].action_masks()
 
     def leg_durations(self, start_xyz, end_xyzs) -> np.ndarray:
-        """(K,) flight times [s] of the legs ``start_xyz -> end_xyzs`` by the mission's clock."""
-        return self._env.mission.leg_durations(start_xyz, end_xyzs)
+        """(K,) flight times [s] of the legs from ``start_xyz`` ((3,) x, y, z [m]) to each of ``end_xyzs``
+        ((K, 3) [m]) by the mission's clock: positions in metres, not node indices (node i is at
+        ``roadmap.positions[i]``)."""
+        return _ENVS[self].mission.leg_durations(start_xyz, end_xyzs)
 
     def affordable(self, end_xyzs) -> np.ndarray:
-        """(K,) bool: which legs from the current position the remaining budget pays for."""
-        return self._env.mission.affordable(end_xyzs)
+        """(K,) bool: which legs from the current position to ``end_xyzs`` ((K, 3) [m]) the remaining
+        budget pays for."""
+        return _ENVS[self].mission.affordable(end_xyzs)
 
     def neighbour_durations(self, node: int, from_xyz=None) -> np.ndarray:
         """(k,) flight times [s] from node ``node`` (or from ``from_xyz``) to its neighbours."""
@@ -121,12 +147,12 @@ class RobotView:
         return fits_budget(duration_s, remaining_s)
 
     def belief_roi(self) -> np.ndarray:
-        return self._env.mission.belief_roi()
+        return _ENVS[self].mission.belief_roi()
 
     def node_footprint(self):
         """(N, n_cells) sparse: row i averages the cells one look from roadmap node i sees (the env's
         node features read the belief's mean and standard deviation through it)."""
-        return self._env._footprint
+        return _ENVS[self]._footprint
 
     def static_key(self) -> tuple:
         """What the roadmap's static predictions (read-outs along legs, leg flight times) depend on beyond
@@ -134,7 +160,7 @@ class RobotView:
         platform's clock. Caches of such predictions live per roadmap and must key on it too: tasks share
         a roadmap object where their maps agree (``Grid15Eval-v1`` and the deployment's twin), not their
         camera or clock, and an object's ``id`` can be reused once it is freed."""
-        platform = self._env.mission.platform
+        platform = _ENVS[self].mission.platform
         clock = (type(platform).__module__, type(platform).__qualname__, getattr(platform, "ramp_s", None))
         return self.sensor.cfg, self.config.grid, self.config.mission, clock
 
@@ -142,7 +168,7 @@ class RobotView:
         """The camera-error states of the belief (:class:`~ipp_bench.belief.PersistentErrorBelief`:
         the deployment and its twin, whose camera repeats its error at a cell), or None where the
         task's read-out noise is white (read it; never update it)."""
-        return error_states(self._env.mission)
+        return error_states(_ENVS[self].mission)
 
     def require_dense_belief(self, planner: str, reason: str) -> None:
         """Refuse, in one line naming the task, the planner and ``reason``, a task whose belief is not the
@@ -150,7 +176,7 @@ class RobotView:
         its full covariance. Called in ``reset``, so a leaderboard refuses before the first episode."""
         gp, grid = self.config.gp, self.config.grid
         if gp.belief != "dense":
-            task = getattr(self._env, "task_id", None) or f"a {grid.rows} x {grid.cols} map"
+            task = getattr(_ENVS[self], "task_id", None) or f"a {grid.rows} x {grid.cols} map"
             raise ValueError(f"planner {planner!r} cannot run on {task} (gp.belief = {gp.belief!r}): {reason}")
 
     # -- prediction --------------------------------------------------------------------------------
@@ -192,9 +218,11 @@ class TruthView(RobotView):
     :class:`RobotView`, which has no way to it.
     """
 
+    __slots__ = ()
+
     def true_roi(self) -> np.ndarray:
         """(n_cells,) bool, row-major: the cells whose true value is at least ``mu_th`` (a copy)."""
-        return self._env.mission.eval_roi.copy()
+        return _ENVS[self].mission.eval_roi.copy()
 
 
 @runtime_checkable

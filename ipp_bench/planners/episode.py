@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..limits import MAX_DECISIONS
-from . import PlannerRegistry, make_planner, view_for
+from . import PlannerError, PlannerRegistry, make_planner, view_for, what_raised
 
 
 @dataclass
@@ -98,8 +98,26 @@ def start_episode(env, planner, seed: int, options: dict | None = None, registry
     """
     agent = make_planner(planner, registry=registry) if isinstance(planner, str) else planner
     obs, _ = env.reset(seed=int(seed), options=options)
-    agent.reset(view_for(agent, env), int(seed))
+    view = view_for(agent, env)
+    try:
+        agent.reset(view, int(seed))
+    except (ValueError, ImportError):
+        raise  # a task the planner refuses (or an extra it needs), in its own words
+    except (Exception, SystemExit) as err:
+        raise PlannerError(f"planner {_label(planner, agent)!r}: its reset raised {what_raised(err)}") from err
     return agent, obs
+
+
+def _label(planner, agent) -> str:
+    return planner if isinstance(planner, str) else getattr(agent, "name", type(agent).__name__)
+
+
+def _decide(decide: Callable[..., Any], label: str, *args: Any) -> Any:
+    """One decision; a planner that calls ``sys.exit`` raises a RuntimeError naming it (never ends the run)."""
+    try:
+        return decide(*args)
+    except SystemExit as err:
+        raise RuntimeError(f"planner {label!r} called sys.exit during a decision: {what_raised(err)}") from err
 
 
 def fly_episode(env, planner, seed: int, *, options: dict | None = None,
@@ -120,10 +138,12 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
             :class:`~ipp_bench.planners.PlannerRegistry`).
 
     Raises:
-        RuntimeError: the planner made :data:`MAX_DECISIONS` decisions without ending the episode.
+        RuntimeError: the planner made :data:`MAX_DECISIONS` decisions without ending the episode, or
+            called ``sys.exit`` in a decision.
+        PlannerError: the planner's ``reset`` raised (a ValueError it raises passes as it is).
     """
     agent, obs = start_episode(env, planner, seed, options, registry)
-    label = planner if isinstance(planner, str) else agent.name
+    label = _label(planner, agent)
     if on_reset is not None:
         on_reset(env)
     times: list[float] = []
@@ -132,7 +152,7 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
     if agent.kind == "graph":
         while obs["action_mask"].any() and len(times) < MAX_DECISIONS:
             t0 = time.perf_counter()
-            action = agent.act(obs)
+            action = _decide(agent.act, label, obs)
             times.append(time.perf_counter() - t0)
             before = obs
             obs, reward, terminated, truncated, _ = env.step(action)
@@ -144,7 +164,7 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
     else:
         while len(times) < MAX_DECISIONS:
             t0 = time.perf_counter()
-            waypoint = agent.next_waypoint()
+            waypoint = _decide(agent.next_waypoint, label)
             wall = time.perf_counter() - t0
             if waypoint is None:
                 break

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import check_number
-from .base import ContinuousPlanner, GraphPlanner
+from ..config import check_number, invalid
+from .base import MIN_LEG_M, ContinuousPlanner, GraphPlanner
 
 
 @dataclass(frozen=True)
@@ -31,7 +31,8 @@ class CoverageConfig:
     """Lawnmower settings.
 
     Attributes:
-        altitude: flight altitude [m]; None = the task's lowest altitude level.
+        altitude: flight altitude [m], within the task's flight envelope (``graph.altitudes``, checked
+            when an episode starts); None = the task's lowest altitude level.
         overlap: fraction of the footprint shared by neighbouring lanes, in [0, 1).
     """
 
@@ -50,6 +51,8 @@ class CoveragePlanner(ContinuousPlanner):
     Lanes run along x, one footprint apart (less ``overlap``), from the corner nearest the start;
     the mission measures every ``measurement_spacing`` metres along them, so measurements are
     equally spaced. When the pattern ends it is flown again in reverse until the budget is spent.
+    Where one footprint covers the whole map, the pattern is one point above the map's centre: the
+    planner flies there and the mission ends (nothing is left to cover).
     """
 
     name = "coverage"
@@ -59,9 +62,17 @@ class CoveragePlanner(ContinuousPlanner):
         super().__init__(config or CoverageConfig())
 
     def reset(self, view, seed):
+        """Lay out the lanes; refuses (one line) an altitude outside the task's flight envelope."""
         super().reset(view, seed)
         cfg = view.config
-        alt = self.settings.altitude or cfg.graph.altitudes[0]
+        alt = self.settings.altitude
+        if alt is None:
+            alt = cfg.graph.altitudes[0]
+        else:
+            low, high = cfg.altitude_range
+            if not low <= alt <= high:
+                invalid("coverage.altitude", alt, f"an altitude in [{low:g}, {high:g}] m (the task's flight "
+                        "envelope, graph.altitudes)")
         half = view.sensor.footprint_side(alt) / 2.0
         width, height = cfg.grid.size_m
         half_x, half_y = min(half, width / 2), min(half, height / 2)
@@ -78,7 +89,10 @@ class CoveragePlanner(ContinuousPlanner):
         for i, y in enumerate(ys):
             a, b = (xs[0], xs[1]) if i % 2 == 0 else (xs[1], xs[0])
             pattern += [(a, y, alt), (b, y, alt)]
-        self._targets = self._cycle(np.array(pattern))
+        pattern = np.array(pattern)
+        # where the footprint covers the whole map every lane point is one point: one look there sees it all
+        self._single = bool(np.all(np.linalg.norm(pattern - pattern[0], axis=1) <= MIN_LEG_M))
+        self._targets = self._cycle(pattern)
         self._target = next(self._targets)
 
     @staticmethod
@@ -88,6 +102,12 @@ class CoveragePlanner(ContinuousPlanner):
             pattern = pattern[::-1]
 
     def next_waypoint(self):
-        while np.linalg.norm(self._target - self.view.position) <= 1e-6:
+        """The next lane end (cut where the budget ends); None when the budget is spent, or when the
+        footprint covers the whole map and the UAV is at the one point that sees it."""
+        if self._single:
+            if np.linalg.norm(self._target - self.view.position) <= MIN_LEG_M:
+                return None
+            return self.affordable(self._target)
+        while np.linalg.norm(self._target - self.view.position) <= MIN_LEG_M:
             self._target = next(self._targets)
         return self.affordable(self._target)

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import available_cpus
 from ..belief import downdate_inplace, gain_factor
 from ..config import TIME_TOL_S
 from ..gains import LookGain, beats, best_far_target
@@ -55,7 +56,7 @@ class AttentionConfig:
     checkpoint: str = ""  # path of an exported checkpoint (.pt); "" = the shipped one
     sample: bool = False  # draw the action from the policy instead of taking the argmax
     device: str = "cpu"  # torch device of the network
-    threads: int = 1  # torch intra-op threads to set; 0 = leave torch's setting alone
+    threads: int = 1  # torch intra-op threads to set (at most the CPUs this process may run on); 0 = torch's own
     # [-] the network attends to the roadmap's context_nodes nodes nearest the UAV (horizontally);
     # 0 = every node. Roadmaps of at most this many nodes (every task up to 30 x 30: 1800) see all of
     # them, so the decisions there are those of full attention, byte for byte.
@@ -134,13 +135,16 @@ class AttentionConfig:
         if self.sample and self.samples:
             raise ValueError(f"attention.sample = true and attention.samples = {self.samples} exclude each other: "
                              "sample draws the flown leg from the policy, samples flies the best imagined trajectory's")
-        if not isinstance(self.threads, int) or self.threads < 0:
-            try:
-                object.__setattr__(self, "threads", int(self.threads))
-            except (TypeError, ValueError):
-                raise ValueError(f"attention.threads = {self.threads!r} is invalid: expected an integer >= 0") from None
-            if self.threads < 0:
-                raise ValueError(f"attention.threads = {self.threads!r} is invalid: expected an integer >= 0")
+        raw = self.threads
+        try:  # an int, or its text from "attention:threads=2"
+            threads = int(raw.strip()) if isinstance(raw, str) else (int(raw) if int(raw) == raw else -1)
+        except (TypeError, ValueError, OverflowError):
+            threads = -1
+        cpus = available_cpus()
+        if isinstance(raw, bool) or not 0 <= threads <= cpus:
+            raise ValueError(f"attention.threads = {raw!r} is invalid: expected 0 (leave torch's setting alone) or "
+                             f"an integer from 1 to {cpus} (the CPUs this process may run on)")
+        object.__setattr__(self, "threads", threads)
 
 
 class _Imagined:

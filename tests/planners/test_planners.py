@@ -140,8 +140,8 @@ def test_view_has_no_truth():
 
 @pytest.mark.parametrize("name", sorted(CHEAP))
 def test_decisions_do_not_change_when_the_truth_a_planner_could_reach_is_swapped(name):
-    """The camera reads a private copy; ``mission.truth`` (reachable through the view's env) is
-    replaced by noise after the reset. A planner that read it would decide differently."""
+    """The camera reads a private copy; ``mission.truth`` is replaced by noise after the reset. A
+    planner that found a way to it would decide differently."""
     def decisions(swap):
         log = []
         env = make_env(TASK, budget_s=30.0, report_times=[30.0])

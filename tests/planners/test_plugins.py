@@ -156,3 +156,118 @@ def test_a_bad_registration_is_one_line(name, target, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         probes.register(name, target)
     assert probes.names() == []
+
+
+# -- a plugin that fails: one line naming it, what it raised and where ------------------------------------------
+
+FAILING = '''
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+
+from ipp_bench.planners.base import GraphPlanner
+
+{at_import}
+
+
+@dataclass(frozen=True)
+class BadConfig:
+    """No settings."""
+
+
+class BadPlanner(GraphPlanner):
+    name = "bad"
+    Config = BadConfig
+
+    def __init__(self, config=None):
+        super().__init__(config)
+        {at_init}
+
+    def reset(self, view, seed):
+        super().reset(view, seed)
+        {at_reset}
+
+    def act(self, obs):
+        {at_act}
+        return int(np.flatnonzero(obs["action_mask"])[0])
+'''
+
+QUIET = {"at_import": "", "at_init": "pass", "at_reset": "pass", "at_act": "pass"}
+
+
+def _install_failing(tmp_path, monkeypatch, **where):
+    site = tmp_path / "failing_site"
+    (site / "bad_planners").mkdir(parents=True)
+    code = FAILING.format(**{**QUIET, **where})
+    (site / "bad_planners" / "__init__.py").write_text(code)
+    info = site / "bad_planners-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: bad-planners\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[ipp_bench.planners]\nbad = bad_planners:BadPlanner\n")
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.delitem(__import__("sys").modules, "bad_planners", raising=False)
+    monkeypatch.setattr(planners, "REGISTRY", planners.PlannerRegistry(planners.BUILT_IN, plugins=True))
+    line = next(i for i, text in enumerate(code.splitlines(), 1) if "Boom" in text or "sys.exit" in text)
+    return f"{site / 'bad_planners' / '__init__.py'}:{line}"
+
+
+ENTRY = "planner 'bad' (entry point 'bad = bad_planners:BadPlanner' of 'ipp_bench.planners')"
+
+
+@pytest.mark.parametrize("where, raised, message", [
+    ("at_import", "raise RuntimeError('Boom at import')",
+     ENTRY + ": importing bad_planners raised RuntimeError: Boom at import (at {at})"),
+    ("at_import", "import no_such_module_Boom",
+     ENTRY + ": importing bad_planners raised ModuleNotFoundError: No module named 'no_such_module_Boom' (at {at})"),
+    ("at_import", "sys.exit(0)", ENTRY + ": importing bad_planners raised SystemExit (sys.exit(0)) (at {at})"),
+    ("at_init", "raise KeyError('Boom')", ENTRY + ": building it raised KeyError: 'Boom' (at {at})"),
+    ("at_init", "sys.exit(3)", ENTRY + ": building it raised SystemExit (sys.exit(3)) (at {at})"),
+    ("at_reset", "raise ZeroDivisionError('Boom')",
+     "planner 'bad': its reset raised ZeroDivisionError: Boom (at {at})"),
+    ("at_reset", "sys.exit()", "planner 'bad': its reset raised SystemExit (sys.exit(None)) (at {at})"),
+], ids=["import-raises", "import-misses-a-module", "import-exits", "init-raises", "init-exits", "reset-raises",
+        "reset-exits"])
+def test_a_plugin_failing_before_its_first_decision_is_one_line(tmp_path, monkeypatch, capsys, where, raised,
+                                                               message):
+    at = _install_failing(tmp_path, monkeypatch, **{where: raised})
+    assert main(["evaluate", "--task", TASK, "--planner", "bad", "--env", "budget_s=20",
+                 "--env", "report_times=[20]"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "ipp-bench: error: " + message.format(at=at), err
+
+
+def test_a_plugin_that_calls_sys_exit_in_a_decision_fails_the_episode_in_one_line(tmp_path, monkeypatch, capsys):
+    at = _install_failing(tmp_path, monkeypatch, at_act="sys.exit(0)")
+    with pytest.raises(RuntimeError, match=re.escape(f"planner 'bad' called sys.exit during a decision: SystemExit "
+                                                     f"(sys.exit(0)) (at {at})")):
+        fly_episode(make_env(TASK, budget_s=20.0, report_times=[20.0]), "bad", 0)
+    assert main(["evaluate", "--task", TASK, "--planner", "bad", "--env", "budget_s=20",
+                 "--env", "report_times=[20]"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "called sys.exit during a decision" in err and "seed 0 failed" in err, err
+
+
+def test_a_plugin_whose_config_raises_is_one_line(tmp_path, monkeypatch):
+    site = tmp_path / "cfg_site"
+    site.mkdir()
+    (site / "cfg_planners.py").write_text(textwrap.dedent('''
+        from dataclasses import dataclass
+        from ipp_bench.planners.base import GraphPlanner
+
+        @dataclass(frozen=True)
+        class C:
+            x: int = 1
+            def __post_init__(self):
+                raise TypeError("Boom in config")
+
+        class P(GraphPlanner):
+            name = "cfg"
+            Config = C
+    '''))
+    monkeypatch.syspath_prepend(str(site))
+    probes = planners.PlannerRegistry({"cfg": "cfg_planners:P"})
+    with pytest.raises(planners.PlannerError, match=r"^planner 'cfg' \(cfg_planners:P\): its Config raised "
+                                                    r"TypeError: Boom in config \(at .*cfg_planners.py:9\)$"):
+        probes.make_planner("cfg")
+    monkeypatch.delitem(__import__("sys").modules, "cfg_planners", raising=False)

@@ -36,9 +36,22 @@ def cell_centre(index: Any, resolution: float) -> Any:
 
 
 # -- the validation helpers of every config (task sections, planner settings) ---------------------
+#: the longest value an error message quotes (a longer one is cut, so that the message stays one line)
+MAX_QUOTED_CHARS = 120
+
+
+def quoted(value: Any) -> str:
+    """``repr(value)``, cut to :data:`MAX_QUOTED_CHARS` (a value nested too deeply to print is named so)."""
+    try:
+        text = repr(value)
+    except RecursionError:
+        return f"<a {type(value).__name__} nested too deeply to print>"
+    return text if len(text) <= MAX_QUOTED_CHARS else text[:MAX_QUOTED_CHARS - 4] + " ..."
+
+
 def invalid(where: str, value: Any, valid: str) -> NoReturn:
     """Raise the suite's one error for a bad setting: ``where = value is invalid: expected valid``."""
-    raise ValueError(f"{where} = {value!r} is invalid: expected {valid}")
+    raise ValueError(f"{where} = {quoted(value)} is invalid: expected {valid}")
 
 
 def _range_text(low: float | None, high: float | None, low_open: bool, high_open: bool) -> str:
@@ -98,6 +111,22 @@ def _integer(section: str, name: str, value: Any, low: int, high: int | None = N
     check_integer(f"{section}.{name}", value, low, high)
 
 
+def _bounded(section: str, name: str, value: Any, bounds: tuple[float, float], unit: str) -> None:
+    check_number(f"{section}.{name}", value, *bounds, unit=unit)
+
+
+# The numerical range of the prior and the camera noise. Within it, every update of the belief is
+# well conditioned (the innovation covariance H P H^T + R stays positive definite in float64, checked
+# at the range's corners by tests/test_config.py); beyond it the Cholesky factorisations fail
+# ("Matrix is not positive definite") or the metrics overflow. The field is in [0, 1]: the range is
+# wide around every sensible value.
+LENGTH_SCALE_RANGE = (1e-3, 1e3)  # [m] gp.length_scale
+VARIANCE_RANGE = (1e-6, 1e3)  # [field units^2] gp.signal_variance, sensor.noise_a
+NUGGET_RANGE = (0.0, 1e3)  # [field units^2] gp.nugget
+PRIOR_MEAN_RANGE = (-1e3, 1e3)  # [field units] gp.prior_mean
+NOISE_B_RANGE = (1e-3, 1e3)  # [1/m] sensor.noise_b
+
+
 @dataclass(frozen=True)
 class GridConfig:
     """The mapped area: a rows x cols grid of square cells."""
@@ -134,11 +163,10 @@ class GPConfig:
     belief_window: int = 0  # [cells] the window belief's window w; 0: ceil(4 length scales / cell side)
 
     def __post_init__(self) -> None:
-        _positive("gp", "length_scale", self.length_scale)
-        _positive("gp", "signal_variance", self.signal_variance)
-        _finite("gp", "prior_mean", self.prior_mean)
-        if _finite("gp", "nugget", self.nugget) < 0:
-            _fail("gp", "nugget", self.nugget, "a finite number >= 0")
+        _bounded("gp", "length_scale", self.length_scale, LENGTH_SCALE_RANGE, "m")
+        _bounded("gp", "signal_variance", self.signal_variance, VARIANCE_RANGE, "field units^2")
+        _bounded("gp", "prior_mean", self.prior_mean, PRIOR_MEAN_RANGE, "field units")
+        _bounded("gp", "nugget", self.nugget, NUGGET_RANGE, "field units^2")
         if self.belief not in BELIEF_KINDS:
             _fail("gp", "belief", self.belief, f"one of {BELIEF_KINDS}")
         _integer("gp", "belief_window", self.belief_window, 0)
@@ -178,8 +206,8 @@ class SensorConfig:
         v = _finite("sensor", "fov_deg", self.fov_deg)
         if not 0.0 < v < 180.0:
             _fail("sensor", "fov_deg", self.fov_deg, "a number in (0, 180) degrees")
-        _positive("sensor", "noise_a", self.noise_a)
-        _positive("sensor", "noise_b", self.noise_b)
+        _bounded("sensor", "noise_a", self.noise_a, VARIANCE_RANGE, "field units^2")
+        _bounded("sensor", "noise_b", self.noise_b, NOISE_B_RANGE, "1/m")
         _positive("sensor", "binning_altitude", self.binning_altitude)
         _integer("sensor", "binning", self.binning, 1)
         e = _finite("sensor", "binning_noise_exponent", self.binning_noise_exponent)
@@ -247,7 +275,8 @@ class MissionConfig:
     budget_s: float = 150.0  # [s] flight-time budget
     speed: float = 2.0  # [m/s] cruise speed; travel time = length / speed
     measurement_spacing: float = 7.5  # [m] travelled between measurements (0.2 map units)
-    start: tuple[float, float, float] | None = (2, 2, 14.0)  # (col, row [cells], altitude [m]); None or "random": random node
+    # (col, row [cells], altitude [m]); None or "random": a random node
+    start: tuple[float, float, float] | None = (2, 2, 14.0)
     field: str = "bernoulli"  # ground-truth family
     mu_th: float = 0.4  # [field units] ROI threshold
     beta: float = 1.0  # [-] belief ROI: mu + beta sigma >= mu_th
@@ -319,9 +348,7 @@ class IPPConfig:
     mission: MissionConfig = field(default_factory=MissionConfig)
 
     def __post_init__(self) -> None:
-        types = {"grid": GridConfig, "gp": GPConfig, "sensor": SensorConfig,
-                 "graph": GraphConfig, "mission": MissionConfig}
-        for name, cls in types.items():
+        for name, cls in _SECTION_CLASSES.items():
             value = getattr(self, name)
             if isinstance(value, dict):
                 object.__setattr__(self, name, _build(cls, name, value))
@@ -333,10 +360,17 @@ class IPPConfig:
                   "noise_floor): the window belief has white read-out noise only")
         start = self.mission.start
         if start is not None:
-            c, r, _ = start
-            if not (0 <= c <= self.grid.cols - 1 and 0 <= r <= self.grid.rows - 1):
+            c, r, h = start
+            low, high = self.altitude_range
+            if not (0 <= c <= self.grid.cols - 1 and 0 <= r <= self.grid.rows - 1 and low <= h <= high):
                 _fail("mission", "start", start,
-                      f"(col in [0, {self.grid.cols - 1}], row in [0, {self.grid.rows - 1}], altitude)")
+                      f"(col in [0, {self.grid.cols - 1}], row in [0, {self.grid.rows - 1}], altitude in "
+                      f"[{low:g}, {high:g}] m, the range of graph.altitudes)")
+
+    @property
+    def altitude_range(self) -> tuple[float, float]:
+        """[m] (lowest, highest) altitude of the task's flight envelope: its roadmap's levels."""
+        return self.graph.altitudes[0], self.graph.altitudes[-1]
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> IPPConfig:
@@ -354,7 +388,11 @@ class IPPConfig:
         sections: dict[str, dict[str, Any]] = {}
         owners = field_owners()
         for name, value in overrides.items():
-            if name in _SECTIONS and isinstance(value, dict):
+            if name in _SECTIONS:  # a whole section, e.g. grid={"rows": 20}
+                if not isinstance(value, dict):
+                    invalid(name, value, f"a dict of the {name} section's fields, e.g. "
+                                         f"{name}={{{_section_fields(name)[0]!r}: ...}}")
+                _check_section_keys(name, value)
                 sections.setdefault(name, {}).update(value)
                 continue
             if name not in owners:
@@ -372,20 +410,31 @@ def _normalise(values: dict[str, Any]) -> dict[str, Any]:
     return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
 
 
-def _build(cls: type, section: str, values: dict[str, Any]) -> Any:
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(values) - names
+def _section_fields(section: str) -> list[str]:
+    return [f.name for f in dataclasses.fields(_SECTION_CLASSES[section])]
+
+
+def _check_section_keys(section: str, values: dict[str, Any]) -> None:
+    """Raise naming the section and its valid fields if ``values`` has a key it does not hold."""
+    names = set(_section_fields(section))
+    unknown = sorted(map(str, set(values) - names))
     if unknown:
-        raise ValueError(f"unknown fields {sorted(unknown)} in section {section!r}: valid are {sorted(names)}")
+        raise ValueError(f"unknown fields {unknown} in section {section!r}: valid are {sorted(names)}")
+
+
+def _build(cls: type, section: str, values: dict[str, Any]) -> Any:
+    _check_section_keys(section, values)
     return cls(**_normalise(values))
+
+
+_SECTION_CLASSES = {"grid": GridConfig, "gp": GPConfig, "sensor": SensorConfig,
+                    "graph": GraphConfig, "mission": MissionConfig}
 
 
 def field_owners() -> dict[str, str]:
     """Map every config field name to the section that holds it."""
-    classes = {"grid": GridConfig, "gp": GPConfig, "sensor": SensorConfig,
-               "graph": GraphConfig, "mission": MissionConfig}
     owners: dict[str, str] = {}
-    for section, cls in classes.items():
+    for section, cls in _SECTION_CLASSES.items():
         for f in dataclasses.fields(cls):
             assert f.name not in owners, f"config field {f.name} is not unique"
             owners[f.name] = section

@@ -66,6 +66,13 @@ class OutputWriteError(OSError):
     """A file could not be written (full disk, quota, ...): the message names it and the cause."""
 
 
+def temporary_sibling(path: str | Path) -> Path:
+    """The temporary file an atomic write of ``path`` goes through: hidden, beside it (the same file
+    system, so the rename is atomic), with its suffix (writers choose the format by it)."""
+    path = Path(path)
+    return path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+
+
 def write_atomically(path: str | Path, write: Callable[[Path], None]) -> Path:
     """Write ``path`` through ``write(tmp)`` into a temporary sibling (same suffix), then rename it
     into place: ``path`` is complete or untouched, never truncated. On failure (a full disk, say)
@@ -75,7 +82,7 @@ def write_atomically(path: str | Path, write: Callable[[Path], None]) -> Path:
         OutputWriteError: naming ``path`` and the cause.
     """
     path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    tmp = temporary_sibling(path)
     try:
         write(tmp)
         with open(tmp, "rb+") as fh:

@@ -9,7 +9,7 @@ Every family gives at least one cell above 0.5 so that the evaluation ROI is nev
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from scipy.ndimage import gaussian_filter

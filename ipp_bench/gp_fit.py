@@ -120,7 +120,14 @@ def minimise_lml(maps: np.ndarray, xy: np.ndarray, prior_mean: float | None,
 
 def fit_prior(config: IPPConfig, maps: int = DEFAULT_MAPS, seed: int = FIT_SEED, fit_mean: bool = False) -> PriorFit:
     """Maximise the log marginal likelihood of ``maps`` draws of the task's field family; the prior
-    mean is the task's, or with ``fit_mean`` fitted too (profiled: the GLS mean)."""
+    mean is the task's, or with ``fit_mean`` fitted too (profiled: the GLS mean).
+
+    Raises:
+        ValueError: the map is too large for the fit's n x n arrays (:func:`ipp_bench.limits.check_fit_size`).
+    """
+    from .limits import check_fit_size
+
+    check_fit_size(config, maps)
     g = config.grid
     xy = cell_centres((g.rows, g.cols), g.resolution)
     Y = sample_maps(config, maps, seed)
@@ -133,6 +140,9 @@ def held_out_lml(config: IPPConfig, length_scale: float, signal_variance: float,
                  maps: int = 20, seed: int = HELD_OUT_SEED, prior_mean: float | None = None) -> float:
     """Log marginal likelihood per map of a prior on ``maps`` held-out draws of the task's family
     (prior mean: ``prior_mean``, default the task's)."""
+    from .limits import check_fit_size
+
+    check_fit_size(config, maps)
     g = config.grid
     xy = cell_centres((g.rows, g.cols), g.resolution)
     Y = sample_maps(config, maps, seed)

@@ -32,7 +32,7 @@ import numpy as np
 from . import metrics as M
 from .belief import GPBelief, belief_model
 from .belief_window import WindowBelief, prior_belief
-from .config import TIME_TOL_S, IPPConfig, cell_centre
+from .config import TIME_TOL_S, IPPConfig, cell_centre, quoted
 from .sensor import Observation, Sensor
 
 #: a time-stamped read-out: (observation or None when nothing usable was seen, values z, time [s])
@@ -119,16 +119,16 @@ class LegOutcome:
 class Platform(Protocol):
     """How a mission's legs are flown and read: the graph's straight legs or a simulated drone."""
 
-    def begin(self, mission: "Mission") -> None:
+    def begin(self, mission: Mission) -> None:
         """Called once, when the mission starts (a simulated world paints its field here)."""
 
-    def leg_durations(self, mission: "Mission", start_xyz, end_xyzs) -> np.ndarray:
+    def leg_durations(self, mission: Mission, start_xyz, end_xyzs) -> np.ndarray:
         """(K,) flight times [s] of legs from ``start_xyz`` to each of the (K, 3) ``end_xyzs``."""
 
-    def fly(self, mission: "Mission", target: np.ndarray, length_m: float) -> LegOutcome:
+    def fly(self, mission: Mission, target: np.ndarray, length_m: float) -> LegOutcome:
         """Fly the accepted leg from ``mission.position`` to ``target`` (straight length ``length_m``)."""
 
-    def read_here(self, mission: "Mission", time_s: float) -> list:
+    def read_here(self, mission: Mission, time_s: float) -> list:
         """The read-outs taken where the drone is now, at mission time ``time_s``."""
 
 
@@ -140,13 +140,13 @@ class StraightLegs:
     ``mission.sensor`` with the mission's noise generator.
     """
 
-    def begin(self, mission: "Mission") -> None:
+    def begin(self, mission: Mission) -> None:
         pass
 
-    def leg_durations(self, mission: "Mission", start_xyz, end_xyzs) -> np.ndarray:
+    def leg_durations(self, mission: Mission, start_xyz, end_xyzs) -> np.ndarray:
         return leg_lengths(start_xyz, end_xyzs) / mission.config.mission.speed
 
-    def fly(self, mission: "Mission", target: np.ndarray, length_m: float) -> LegOutcome:
+    def fly(self, mission: Mission, target: np.ndarray, length_m: float) -> LegOutcome:
         start = mission.position
         delta = target - start
         speed = mission.config.mission.speed
@@ -157,11 +157,11 @@ class StraightLegs:
         end = mission.time_s + duration
         return LegOutcome(self._read(mission, points, times), end, duration, length_m, target, 0.0)
 
-    def read_here(self, mission: "Mission", time_s: float) -> list:
+    def read_here(self, mission: Mission, time_s: float) -> list:
         return self._read(mission, [mission.position], [time_s])
 
     @staticmethod
-    def _read(mission: "Mission", points, times) -> list:
+    def _read(mission: Mission, points, times) -> list:
         records = []
         for p, t in zip(np.asarray(points), np.asarray(times)):
             obs, z = mission.sensor.measure(p, mission._truth_flat, mission.rng)
@@ -186,7 +186,7 @@ class Mission:
 
     def __init__(self, config: IPPConfig, truth: np.ndarray, rng: np.random.Generator,
                  start_xyz, belief: GPBelief | WindowBelief | None = None, sensor: Sensor | None = None,
-                 platform: "Platform | None" = None):
+                 platform: Platform | None = None):
         g = config.grid
         truth = np.array(truth, dtype=np.float64)
         if truth.shape != (g.rows, g.cols):
@@ -212,6 +212,7 @@ class Mission:
         self.path: list[tuple[float, float, float, float]] = [(0.0, *self.position)]
         self.measurement_log: list[tuple[float, float, float, float]] = []
         self.eval_roi = M.truth_roi(truth, config.mission.mu_th)
+        self._roi_cells = int(self.eval_roi.sum())
         self._prior_trace = M.trace_roi(self.belief.variance, self.eval_roi)
         self._prior_rmse = M.rmse_roi(self.belief.mean, self._truth_flat, self.eval_roi)
         self.history: list[MetricRecord] = [self._evaluate(0.0)]
@@ -243,15 +244,24 @@ class Mission:
 
     # -- flight -------------------------------------------------------------------------------
     def check_position(self, xyz) -> np.ndarray:
-        """``xyz`` as a float array, or a ValueError naming the valid region."""
-        p = np.asarray(xyz, dtype=np.float64).reshape(-1)
+        """``xyz`` as a float array, or a ValueError naming the flight envelope: the map and the
+        task's altitude range (its roadmap's levels), whichever planner asks. The camera model, the
+        noise and the budget were set for that range: a waypoint above it would be scored with a
+        footprint and a noise the task never meant to offer."""
+        try:
+            p = np.asarray(xyz, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            p = np.full(1, np.nan)
         width, height = self.config.grid.size_m
         if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise ValueError(f"position {xyz!r} is invalid: expected three finite numbers (x, y, z) [m]")
-        if not (0 <= p[0] <= width and 0 <= p[1] <= height and p[2] > 0):
+            raise ValueError(f"position {quoted(xyz)} is invalid: expected three finite numbers (x, y, z) [m]")
+        low, high = self.config.altitude_range
+        tol = _LENGTH_TOL_M
+        if not (-tol <= p[0] <= width + tol and -tol <= p[1] <= height + tol and low - tol <= p[2] <= high + tol):
             raise ValueError(
-                f"position {tuple(p)} is outside the map: valid is x in [0, {width}], "
-                f"y in [0, {height}], z > 0 [m]")
+                f"position {tuple(float(v) for v in p)} is outside the map or the task's altitudes (its flight "
+                f"envelope): valid is x in [0, {width:g}], y in [0, {height:g}], z in [{low:g}, {high:g}] [m] (the "
+                "altitudes of graph.altitudes)")
         return p
 
     def check_leg(self, xyz) -> tuple[np.ndarray, float]:
@@ -323,6 +333,14 @@ class Mission:
     def _evaluate(self, time_s: float) -> MetricRecord:
         trace = M.trace_roi(self.belief.variance, self.eval_roi)
         rmse = M.rmse_roi(self.belief.mean, self._truth_flat, self.eval_roi)
+        # never reported: a number or an error (the RMSE of an empty ROI, a truth of the caller's, is NaN)
+        if not math.isfinite(trace) or (self._roi_cells and not math.isfinite(rmse)):
+            gp, sensor = self.config.gp, self.config.sensor
+            raise FloatingPointError(
+                f"the belief is no longer finite at t = {time_s:g} s (ROI trace {trace}, RMSE {rmse}) with "
+                f"gp.length_scale = {gp.length_scale:g}, gp.signal_variance = {gp.signal_variance:g}, "
+                f"gp.nugget = {gp.nugget:g}, gp.prior_mean = {gp.prior_mean:g}, sensor.noise_a = {sensor.noise_a:g}, "
+                f"sensor.noise_b = {sensor.noise_b:g}: bring them towards the field's scale")
         return MetricRecord(time_s, trace, rmse, M.reduction_pct(self._prior_trace, trace),
                             M.reduction_pct(self._prior_rmse, rmse), self.n_measurements, self.distance_m)
 

@@ -61,7 +61,8 @@ class CameraErrorLegs:
         if not (isinstance(neighbour_corr, (int, float)) and 0.0 <= neighbour_corr < 1.0):
             raise ValueError(f"neighbour_corr = {neighbour_corr!r} is invalid: expected a number in [0, 1)")
         if not (ramp_s > 0.0 and 0.0 < step_s <= 0.1):
-            raise ValueError(f"ramp_s = {ramp_s}, step_s = {step_s} are invalid: expected ramp_s > 0, step_s in (0, 0.1] s")
+            raise ValueError(f"ramp_s = {ramp_s}, step_s = {step_s} are invalid: expected ramp_s > 0, "
+                             "step_s in (0, 0.1] s")
         self.neighbour_corr, self.ramp_s, self.step_s = float(neighbour_corr), float(ramp_s), float(step_s)
         if not (isinstance(tilt_sd_deg, (int, float)) and 0.0 <= tilt_sd_deg < 30.0):
             raise ValueError(f"tilt_sd_deg = {tilt_sd_deg!r} is invalid: expected a number in [0, 30) degrees")

@@ -15,7 +15,8 @@ BAD = [
     (SensorConfig, "binning_noise_exponent", float("nan")),
     (SensorConfig, "persistent_var", -1e-4), (SensorConfig, "persistent_var_binned", float("nan")),
     (SensorConfig, "persistent_corr", 1.5), (SensorConfig, "persistent_neighbour_corr", 1.0),
-    (SensorConfig, "persistent_neighbour_corr", -0.1), (SensorConfig, "noise_floor", 0.0), (SensorConfig, "noise_floor", 1.2),
+    (SensorConfig, "persistent_neighbour_corr", -0.1), (SensorConfig, "noise_floor", 0.0),
+    (SensorConfig, "noise_floor", 1.2),
     (SensorConfig, "fov_deg", 0.0), (SensorConfig, "fov_deg", 180.0), (SensorConfig, "noise_a", 0.0),
     (SensorConfig, "noise_b", -0.2), (SensorConfig, "binning_altitude", 0.0), (SensorConfig, "binning", 0),
     (GraphConfig, "altitudes", ()), (GraphConfig, "altitudes", (14.0, 8.0)), (GraphConfig, "altitudes", (0.0, 8.0)),
@@ -34,6 +35,11 @@ BAD = [
     (MissionConfig, "mu_th", 0.9), (MissionConfig, "mu_th", -0.1),
     (MissionConfig, "episode_seeds", (5, 5)), (MissionConfig, "episode_seeds", (-1, 3)),
     (MissionConfig, "episode_seeds", (0.0, 3)),
+    # beyond the numerical range of the prior and the noise: a Cholesky that fails ("Singular matrix",
+    # "not positive definite") or metrics that overflow (inf RMSE, nan %)
+    (GPConfig, "prior_mean", 1e300), (GPConfig, "signal_variance", 1e300), (GPConfig, "signal_variance", 1e-300),
+    (GPConfig, "nugget", 1e300), (GPConfig, "length_scale", 1e300), (GPConfig, "length_scale", 1e-300),
+    (SensorConfig, "noise_a", 1e-300), (SensorConfig, "noise_a", 1e300), (SensorConfig, "noise_b", 1e-300),
 ]
 
 
@@ -88,3 +94,65 @@ def test_numbers_of_any_numeric_type_are_accepted_and_stored_as_python_numbers()
     assert c.mission.budget_s == 100 and type(c.mission.budget_s) is int
     assert type(c.graph.k) is int
     assert IPPConfig().replace(budget_s=100).to_dict() == IPPConfig().replace(budget_s=np.int64(100)).to_dict()
+
+
+@pytest.mark.parametrize("name, value, valid", [
+    ("prior_mean", 1e300, "in [-1000, 1000] [field units]"), ("noise_a", 1e-300, "in [1e-06, 1000] [field units^2]"),
+    ("signal_variance", 1e300, "in [1e-06, 1000] [field units^2]"), ("nugget", 1e300, "in [0, 1000] [field units^2]"),
+], ids=["prior_mean", "noise_a", "signal_variance", "nugget"])
+def test_the_numerical_range_is_named_with_its_bounds(name, value, valid):
+    with pytest.raises(ValueError) as err:
+        IPPConfig().replace(**{name: value})
+    assert f"{name} = {value!r} is invalid: expected a finite number {valid}" in str(err.value)
+
+
+def test_the_corners_of_the_numerical_range_give_finite_metrics():
+    """Every update stays well conditioned and every metric finite at the range's corners (with the
+    lowest altitude's noise, the smallest there is, against the largest prior variance)."""
+    np = pytest.importorskip("numpy")
+    from ipp_bench.config import LENGTH_SCALE_RANGE, NOISE_B_RANGE, NUGGET_RANGE, PRIOR_MEAN_RANGE, VARIANCE_RANGE
+    from ipp_bench.mission import Mission, cell_to_xyz
+
+    truth = np.random.default_rng(0).random((15, 15))
+    corners = [dict(length_scale=ls, signal_variance=VARIANCE_RANGE[1], noise_a=VARIANCE_RANGE[0],
+                    noise_b=NOISE_B_RANGE[0], nugget=NUGGET_RANGE[0], prior_mean=pm)
+               for ls in LENGTH_SCALE_RANGE for pm in PRIOR_MEAN_RANGE]
+    corners += [dict(signal_variance=VARIANCE_RANGE[0], noise_a=VARIANCE_RANGE[1], noise_b=NOISE_B_RANGE[1],
+                     nugget=NUGGET_RANGE[1], length_scale=LENGTH_SCALE_RANGE[1])]
+    for corner in corners:
+        cfg = IPPConfig().replace(budget_s=60.0, **corner)
+        m = Mission(cfg, truth, np.random.default_rng(1), cell_to_xyz(cfg, 2, 2, 8.0))
+        for target in ((20.0, 5.0, 8.0), (20.0, 20.0, 14.0), (5.0, 20.0, 8.0), (30.0, 30.0, 8.0)):
+            m.fly_to(target)
+        for record in m.history:
+            assert all(np.isfinite([record.trace_roi, record.rmse_roi, record.uncertainty_reduction_pct,
+                                    record.rmse_reduction_pct])), corner
+
+
+@pytest.mark.parametrize("section, value", [("grid", {"nosuch": 5}), ("mission", {"foo": 1})], ids=["grid", "mission"])
+def test_an_unknown_key_in_a_whole_section_is_named(section, value):
+    with pytest.raises(ValueError) as err:
+        IPPConfig().replace(**{section: value})
+    assert f"unknown fields {list(value)} in section {section!r}: valid are" in str(err.value)
+    with pytest.raises(ValueError, match=rf"{section} = 5 is invalid: expected a dict of the {section} section"):
+        IPPConfig().replace(**{section: 5})
+
+
+@pytest.mark.parametrize("start", [(10, 10, 1e9), (10, 10, 0.001), (10, 10, 7.0)], ids=["1e9", "0.001", "7"])
+def test_a_start_outside_the_altitudes_is_refused_naming_the_range(start):
+    """Unchecked, the start snaps to the nearest node: 1e9 m would start at 14 m without a word."""
+    with pytest.raises(ValueError) as err:
+        IPPConfig().replace(start=start)
+    assert "mission.start" in str(err.value) and "altitude in [8, 14] m" in str(err.value)
+
+
+def test_a_value_nested_too_deeply_to_print_is_still_one_line():
+    deep = []
+    for _ in range(100_000):
+        deep = [deep]
+    with pytest.raises(ValueError) as err:
+        GridConfig(rows=deep)
+    assert "grid.rows = <a list nested too deeply to print> is invalid" in str(err.value)
+    with pytest.raises(ValueError) as err:
+        GridConfig(rows=list(range(10_000)))
+    assert len(str(err.value)) < 300

@@ -115,3 +115,27 @@ def test_gp_section_records_a_fitted_mean():
     fit = gp_fit.PriorFit("weed_patches", (3, 3), 40, 7, 6.9, 0.018, 0.00068, 0.036971234, 1.0, True)
     text = gp_fit.gp_section(fit, "ipp-bench fit-prior --task X --fit-mean --write")
     assert "mean fitted (generalised least squares)" in text and "prior_mean = 0.03697  # [field units]" in text
+
+
+def test_a_fit_too_large_for_memory_is_refused_before_any_map_is_drawn():
+    """128 x 128 cells: 5 covariances of 16384^2 floats (10 GiB) would end in SIGSEGV; refused first, with
+    the estimate checked against the measured peak on a map that fits."""
+    import tracemalloc
+
+    from ipp_bench.limits import FIT_ARRAYS, fit_prior_bytes
+
+    big = task_spec("ipp_bench/Hotspots128Eval-v2").config
+    tracemalloc.start()
+    for fit in (lambda: gp_fit.fit_prior(big, 40), lambda: gp_fit.held_out_lml(big, 5.0, 0.1, 1e-3)):
+        with pytest.raises(ValueError, match=r"128 x 128 cells is too large to fit a prior on: .* 10 GiB \(limit"):
+            fit()
+    assert tracemalloc.get_traced_memory()[1] < 20 * 2**20
+    tracemalloc.stop()
+    small = IPPConfig().replace(rows=20, cols=20)
+    maps = gp_fit.sample_maps(small, 40, 1)
+    xy = cell_centres((20, 20), 2.5)
+    tracemalloc.start()
+    gp_fit.log_marginal_likelihood(maps, xy, 5.0, 0.1, 1e-3)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert FIT_ARRAYS * 400**2 * 8 <= fit_prior_bytes(small, 40) and peak <= fit_prior_bytes(small, 40)

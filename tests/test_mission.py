@@ -47,8 +47,39 @@ def test_invalid_targets():
     m = make()
     with pytest.raises(ValueError, match="outside the map"):
         m.fly_to((50.0, 5.0, 8.0))
+    with pytest.raises(ValueError, match="expected three finite numbers"):
+        m.fly_to("up")
     with pytest.raises(ValueError, match="already there"):
         m.fly_to(m.position)
+
+
+@pytest.mark.parametrize("target, where", [
+    ((20.0, 20.0, 60.0), "above the highest level"), ((20.0, 20.0, 0.001), "below the lowest level"),
+    ((20.0, 20.0, 7.9), "just below the lowest level"), ((37.6, 20.0, 8.0), "beyond the map's edge"),
+], ids=["z=60", "z=0.001", "z=7.9", "x=37.6"])
+def test_a_waypoint_outside_the_flight_envelope_is_refused_whatever_planner_asks(target, where):
+    """The task's altitudes (8 and 14 m) bound the flight as the map does: a planner that asks for 60 m
+    (a wider footprint the task never offers) or 1 mm is refused with one line naming the range."""
+    m = make()
+    with pytest.raises(ValueError) as err:
+        m.fly_to(target)
+    assert "valid is x in [0, 37.5], y in [0, 37.5], z in [8, 14] [m]" in str(err.value), where
+    assert m.time_s == 0.0 and len(m.path) == 1  # nothing flown
+    m.fly_to((20.0, 20.0, 8.0))  # the envelope's own edges are inside it
+    m.fly_to((37.5, 20.0, 14.0))
+
+
+def test_a_start_outside_the_flight_envelope_is_refused():
+    cfg = IPPConfig()
+    with pytest.raises(ValueError, match=r"z in \[8, 14\]"):
+        Mission(cfg, np.zeros((15, 15)), np.random.default_rng(0), (5.0, 5.0, 30.0))
+
+
+def test_a_belief_that_is_no_longer_finite_is_an_error_never_a_metric():
+    m = make()
+    m.belief.mean[:] = 1e300  # as an overflowing prior would leave it: its squared error is inf
+    with pytest.raises(FloatingPointError, match="no longer finite at t = .* gp.prior_mean = 0.5"):
+        m.fly_to(m.position + [10.0, 0.0, 0.0])
 
 
 def test_metrics_at_report_times_are_exact():
@@ -122,7 +153,7 @@ def test_one_update_signature_for_both_belief_models_and_hooks_see_every_batch()
         m = make(**kw)
         assert isinstance(m.belief_model, cls) and m.belief_model.field is m.belief
         seen = []
-        m.update_hooks.append(lambda obs, zs, t: seen.append((len(obs), t)))
+        m.update_hooks.append(lambda obs, zs, t, seen=seen: seen.append((len(obs), t)))
         before = m.belief.copy()
         m.fly_to(cell_to_xyz(m.config, 6, 2, 8.0))
         assert seen and all(n > 0 for n, _ in seen) and seen[-1][1] == pytest.approx(m.time_s)

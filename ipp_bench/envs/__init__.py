@@ -21,4 +21,5 @@ from .registry import (
 register_all()
 
 __all__ = ["NAMESPACE", "GraphIPPEnv", "TASKS", "TASK_FILE_ERRORS", "TaskFileError", "TaskSpec", "load_task",
-           "make_env", "parse_overrides", "register_all", "resolve_task", "short_task_id", "tagged", "task_config", "task_spec"]
+           "make_env", "parse_overrides", "register_all", "resolve_task", "short_task_id", "tagged", "task_config",
+           "task_spec"]

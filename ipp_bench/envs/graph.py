@@ -11,7 +11,7 @@ from scipy import sparse
 
 from .. import metrics as M
 from .._threads import limit_blas_threads
-from ..config import IPPConfig
+from ..config import IPPConfig, invalid
 from ..fields import make_field
 from ..limits import check_sizes
 from ..mission import Mission, cell_to_xyz
@@ -38,8 +38,9 @@ class GraphIPPEnv(gym.Env):
 
     ## Observation Space
     ``Dict`` of ``Box`` spaces, N nodes, k neighbours:
-    - ``node_features`` (N, 5) float32: x, y, z min-max normalised over the roadmap, belief mean
-      and belief standard deviation averaged over the node's camera footprint;
+    - ``node_features`` (N, 5) float32: x, y, z min-max normalised over the roadmap (in [0, 1]), belief
+      mean (any finite value) and belief standard deviation (in [0, the prior's]) averaged over the
+      node's camera footprint;
     - ``pos_encoding`` (N, pe_dim) float32: Laplacian eigenvectors of the roadmap (constant);
     - ``current_node`` (1,) int64; ``neighbours`` (k,) int64: node indices;
     - ``action_mask`` (k,) int8: 1 where the neighbour is affordable;
@@ -57,7 +58,8 @@ class GraphIPPEnv(gym.Env):
     ## Arguments
     ``gym.make(task_id, **overrides)``: any field of :class:`ipp_bench.config.IPPConfig` by name
     (``budget_s=200``, ``rows=20``, ``field="regions"``, ...), or ``config=IPPConfig(...)``;
-    ``render_mode="rgb_array"`` (the only mode; another one is refused, naming it). Constructing an environment limits numpy/scipy BLAS to one
+    ``render_mode="rgb_array"`` (the only mode; another one is refused, naming it). Constructing an
+    environment limits numpy/scipy BLAS to one
     thread per process (``IPP_BENCH_BLAS_THREADS`` overrides; see ``ipp_bench._threads``).
 
     ## Version History
@@ -76,12 +78,16 @@ class GraphIPPEnv(gym.Env):
             config = IPPConfig()
         elif isinstance(config, dict):
             config = IPPConfig.from_dict(config)
+        elif not isinstance(config, IPPConfig):
+            invalid("config", config, "an ipp_bench.config.IPPConfig, a dict of its sections or None "
+                                      "(or set fields by name: gym.make(task, budget_s=100))")
         if overrides:
             config = config.replace(**overrides)
         check_sizes(config)  # before the roadmap: a map or spacing too large costs nothing
         limit_blas_threads()
         if render_mode not in (None, *self.metadata["render_modes"]):
-            raise ValueError(f"render_mode={render_mode!r} is invalid: valid are {self.metadata['render_modes']} or None")
+            raise ValueError(f"render_mode={render_mode!r} is invalid: valid are {self.metadata['render_modes']} "
+                             "or None")
         self.config = config
         self.task_id = task_id
         self.render_mode = render_mode
@@ -94,7 +100,7 @@ class GraphIPPEnv(gym.Env):
         self._footprint = self._footprint_matrix()
         pe_dim = config.graph.pe_dim
         self.observation_space = spaces.Dict({
-            "node_features": spaces.Box(-np.inf, np.inf, (N, 5), np.float32),
+            "node_features": spaces.Box(*self._feature_bounds(N), (N, 5), np.float32),
             "pos_encoding": spaces.Box(-1.0, 1.0, (N, pe_dim), np.float32),
             "current_node": spaces.Box(0, N - 1, (1,), np.int64),
             "neighbours": spaces.Box(0, N - 1, (k,), np.int64),
@@ -119,6 +125,16 @@ class GraphIPPEnv(gym.Env):
         n = self.config.grid.n_cells
         return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                                  shape=(self.roadmap.n_nodes, n))
+
+    def _feature_bounds(self, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) of ``node_features``: x, y, z in [0, 1]; the belief mean has no bound of its own
+        (any finite float32); its standard deviation is in [0, the prior's], which no update raises."""
+        gp = self.config.gp
+        prior_std = np.float32(np.sqrt(gp.signal_variance + gp.nugget)) * np.float32(1 + 1e-5)  # rounding
+        finite = np.finfo(np.float32).max
+        low = np.array([0.0, 0.0, 0.0, -finite, 0.0], dtype=np.float32)
+        high = np.array([1.0, 1.0, 1.0, finite, prior_std], dtype=np.float32)
+        return np.broadcast_to(low, (n_nodes, 5)).copy(), np.broadcast_to(high, (n_nodes, 5)).copy()
 
     def _make_mission(self, truth: np.ndarray, rng: np.random.Generator, start_xyz: np.ndarray) -> Mission:
         """The world of one episode; the MuJoCo deployment overrides this."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import re
+import stat
 import sys
 import warnings
 from collections.abc import Iterable
@@ -19,7 +20,7 @@ from typing import Any
 import gymnasium as gym
 from gymnasium.envs.registration import load_env_creator
 
-from ..config import IPPConfig
+from ..config import IPPConfig, quoted
 from ..data import data_dir
 
 if sys.version_info >= (3, 11):
@@ -85,11 +86,8 @@ def load_task_file(path, builtin: bool = False) -> TaskSpec:
     """
     from ..limits import check_sizes
 
-    path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as err:
-        raise TaskFileError(path, f"cannot be read ({err.strerror or err})") from None
+    path = _task_path(path, "load_task_file(path)")
+    raw = _read_regular_file(path)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as err:
@@ -97,11 +95,19 @@ def load_task_file(path, builtin: bool = False) -> TaskSpec:
                                   "a task file is TOML") from None
     try:
         data = tomllib.loads(text)
+    except RecursionError:
+        raise TaskFileError(path, f"nests its tables or arrays too deeply to read (a task file nests at most "
+                                  f"{MAX_TASK_FILE_DEPTH} deep)") from None
     except tomllib.TOMLDecodeError as err:
         m = re.search(r"\(at line (\d+), column \d+\)", str(err))
         what = re.sub(r"\s*\(at (line \d+, column \d+|end of document)\)", "", str(err)).strip()
         line = int(m.group(1)) if m else (max(text.count("\n"), 1) if "end of document" in str(err) else None)
         raise TaskFileError(path, f"TOML syntax error: {what}", line) from None
+    deep = _too_deep(data, MAX_TASK_FILE_DEPTH)
+    if deep is not None:
+        raise TaskFileError(path, f"{deep} nests more than {MAX_TASK_FILE_DEPTH} tables or arrays deep: a task "
+                                  "file holds [config.*] tables of numbers, strings and short lists",
+                            _line_of(text, deep))
     unknown = sorted(set(data) - set(TASK_FILE_KEYS))
     if unknown:
         raise TaskFileError(path, f"unknown key {unknown[0]!r}: valid top-level keys are {list(TASK_FILE_KEYS)}",
@@ -141,6 +147,62 @@ def load_task_file(path, builtin: bool = False) -> TaskSpec:
     return TaskSpec(task_id, entry, tuple(tags), description.strip(), config, str(path), builtin, dict(sim))
 
 
+#: [bytes] the largest task file read (the suite's are about 2 KB)
+MAX_TASK_FILE_BYTES = 1 << 20
+#: tables and arrays a task file may nest (``config`` > ``sim`` > a sub-table > a list of lists: 4)
+MAX_TASK_FILE_DEPTH = 6
+
+
+def _task_path(path, what: str) -> Path:
+    """``path`` as a Path, or a ValueError naming ``what`` (the argument) and what it takes."""
+    if isinstance(path, bytes):
+        path = path.decode(errors="replace")
+    if not isinstance(path, (str, Path)) or not str(path).strip():
+        raise ValueError(f"{what} = {quoted(path)} is invalid: expected the path of a task file "
+                         "(e.g. 'path/to/mine.toml')")
+    return Path(path)
+
+
+def _read_regular_file(path: Path) -> bytes:
+    """The bytes of the regular file ``path`` (at most :data:`MAX_TASK_FILE_BYTES`); a FIFO, a device or
+    a folder is refused before it is opened (reading a FIFO would wait for a writer for ever)."""
+    try:
+        st = path.stat()
+    except OSError as err:
+        raise TaskFileError(path, f"cannot be read ({err.strerror or err})") from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a folder" if stat.S_ISDIR(st.st_mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode)
+                else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode)
+                else "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
+        raise TaskFileError(path, f"cannot be read: it is {kind}, not a regular file (a task file is a .toml file)")
+    if st.st_size > MAX_TASK_FILE_BYTES:
+        raise TaskFileError(path, f"is {st.st_size} bytes: a task file has at most {MAX_TASK_FILE_BYTES} bytes "
+                                  "(the suite's have about 2 KB)")
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_TASK_FILE_BYTES + 1)  # a file that grows while it is read is cut here
+    except OSError as err:
+        raise TaskFileError(path, f"cannot be read ({err.strerror or err})") from None
+    if len(raw) > MAX_TASK_FILE_BYTES:
+        raise TaskFileError(path, f"has more than {MAX_TASK_FILE_BYTES} bytes: a task file has at most that many")
+    return raw
+
+
+def _too_deep(value: Any, limit: int, where: str = "") -> str | None:
+    """The key path of the first value of ``value`` nested more than ``limit`` tables or arrays deep, or None."""
+    if not isinstance(value, (dict, list)):
+        return None
+    if limit < 0:
+        return where or "the file"
+    items = value.items() if isinstance(value, dict) else enumerate(value)
+    for key, item in items:
+        name = where if isinstance(value, list) else f"{where}.{key}" if where else str(key)  # keys, not indices
+        found = _too_deep(item, limit - 1, name)
+        if found is not None:
+            return found
+    return None
+
+
 def discover(folder, builtin: bool = False) -> tuple[dict[str, TaskSpec], list[str]]:
     """The valid task files of ``folder`` by id, and one ``"FILE:LINE: what"`` per invalid one
     (each also a :class:`TaskFileWarning`, pointing at the file's line); a bad file never stops
@@ -176,7 +238,7 @@ def load_task(path) -> str:
     Raises:
         TaskFileError: the file cannot be read or is invalid (file, line, what).
     """
-    spec = load_task_file(path)
+    spec = load_task_file(_task_path(path, "load_task(path)"))
     held = TASKS.get(spec.id)
     if held is not None:
         if Path(held.source).resolve() == Path(spec.source).resolve():
@@ -201,6 +263,8 @@ def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
         spec = TASKS.get(kwargs.get("task_id", ""))
         extra = "sim" if spec is not None and "deployment" in spec.tags else None  # the MuJoCo tasks
         hint = f'pip install "ipp-bench[{extra}]"' if extra else "install the package that provides it"
+        if "pip install" in str(err):  # the import's own message already names what to install
+            raise ImportError(f"the environment {env_class} cannot be imported: {err}") from None
         raise ImportError(f"the environment {env_class} cannot be imported ({err}): {hint}") from None
     modes = list(cls.metadata.get("render_modes", []))
     if render_mode is not None and render_mode not in modes:
@@ -271,8 +335,45 @@ def make_env(task: str, *, render: bool = False, **overrides: Any):
     Raises:
         ValueError: unknown task, or an override that names no field or has a bad value.
     """
-    env = gym.make(resolve_task(task), render_mode="rgb_array" if render else None, **overrides)
+    task_id = resolve_task(task)
+    with warnings.catch_warnings():  # gymnasium's own notice (in colour, once per process and task): ours instead
+        warnings.filterwarnings("ignore", message=r".* is out of date\. You should consider upgrading",
+                                category=DeprecationWarning)
+        env = gym.make(task_id, render_mode="rgb_array" if render else None, **overrides)
+    warn_if_outdated(task_id)
     return env.unwrapped  # the tasks are registered without gymnasium's checker and wrappers
+
+
+class OutdatedTaskWarning(FutureWarning):
+    """A task whose name has a newer version (``Grid15Eval-v0`` beside ``-v1``): said once per process
+    and task, in plain text, pointing at the task file. Leaderboard workers do not repeat it."""
+
+
+_WARNED_OUTDATED: set[str] = set()
+
+
+def newer_version(task_id: str) -> str | None:
+    """The id of the newest version of ``task_id``'s name when it is newer than ``task_id``, else None."""
+    match = re.match(r"^(.*)-v(\d+)$", task_id)
+    if match is None:
+        return None
+    name, version = match.group(1), int(match.group(2))
+    newer = [(int(m.group(1)), t) for t in TASKS if (m := re.match(rf"^{re.escape(name)}-v(\d+)$", t))]
+    best = max(newer, default=(version, task_id))
+    return best[1] if best[0] > version else None
+
+
+def warn_if_outdated(task_id: str) -> None:
+    """Warn (:class:`OutdatedTaskWarning`, once per process) that a newer version of the task exists."""
+    newer = newer_version(task_id)
+    if newer is None or task_id in _WARNED_OUTDATED:
+        return
+    _WARNED_OUTDATED.add(task_id)
+    spec = TASKS[task_id]
+    source = spec.source
+    line = _line_of(Path(source).read_text(), "id") if Path(source).is_file() else None
+    warnings.warn_explicit(f"{task_id} is out of date: the current version of the task is {newer}",
+                           OutdatedTaskWarning, filename=source, lineno=line or 0)
 
 
 def short_task_id(task_id: str) -> str:
@@ -316,14 +417,19 @@ def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
     naming itself).
 
     Raises:
-        ValueError: an item that is not ``key=value``.
+        ValueError: an item that is not ``key=value``, or a key given twice.
     """
     out: dict[str, Any] = {}
+    given: dict[str, str] = {}
     for item in items:
         key, eq, raw = item.partition("=")
         key = key.strip()
         if not eq or not key:
             raise ValueError(f"--env {item!r} is not KEY=VALUE (e.g. --env budget_s=100)")
+        if key in given:  # which of the two was meant is not ours to guess
+            raise ValueError(f"--env {key} is given twice ({key}={given[key].strip()} and {key}={raw.strip()}): "
+                             "give each setting once")
+        given[key] = raw
         try:
             out[key] = json.loads(raw)
         except json.JSONDecodeError:

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +23,11 @@ from ..sim.video import DemoVideo, make_sim_env
 
 DEFAULT_TASK = "ipp_bench/MuJoCoWeed15-v1"
 CRF_RANGE = (0, 51)  # libx264
+FPS_RANGE = (1, 60)  # [frames/s] of the video
+SPEEDUP_RANGE = (0.1, 100.0)  # [-] mission seconds per video second
+HOLD_RANGE_S = (0.0, 60.0)  # [s] of video holding the final frame
+EXIT_FAILED = 1  # the episode or the video failed part-way
+EXIT_TERMINATED = 143  # 128 + SIGTERM
 
 
 def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -36,13 +43,16 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     parser.add_argument("--compare-out", default=None, metavar="PNG",
                         help="comparison plot path (default: <out>_compare.png)")
     parser.add_argument("--budget", type=float, default=None, help="override the task's budget [s] (short demos)")
-    parser.add_argument("--fps", type=int, default=10, help="video frames per second (default 10)")
+    parser.add_argument("--fps", type=int, default=10,
+                        help=f"video frames per second, {FPS_RANGE[0]}-{FPS_RANGE[1]} (default 10)")
     parser.add_argument("--speedup", type=float, default=4.0,
-                        help="mission seconds per video second (default 4)")
+                        help=f"mission seconds per video second, {SPEEDUP_RANGE[0]:g}-{SPEEDUP_RANGE[1]:g} (default 4)")
     parser.add_argument("--size", default="1280x720", help="video WIDTHxHEIGHT, multiples of 16 (default 1280x720)")
     parser.add_argument("--crf", type=int, default=32,
                         help=f"x264 quality in {CRF_RANGE[0]}-{CRF_RANGE[1]}, lower is better/larger (default 32)")
-    parser.add_argument("--hold", type=float, default=1.0, help="seconds of video holding the final frame")
+    parser.add_argument("--hold", type=float, default=1.0,
+                        help=f"seconds of video holding the final frame, {HOLD_RANGE_S[0]:g}-{HOLD_RANGE_S[1]:g} "
+                             "(default 1)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -138,35 +148,90 @@ def _check_writable(path: Path) -> None:
         raise ValueError(f"output {str(path)!r} is invalid: not writable")
 
 
+def _error(message: str, status: int = 2) -> int:
+    print(f"ipp-bench demo: error: {message}", file=sys.stderr)
+    return status
+
+
+class _SigtermAsInterrupt:
+    """SIGTERM handler: stop like Ctrl-C (the video in progress is dropped, the old file kept)."""
+
+    received = False
+
+    def __call__(self, signum, frame) -> None:
+        self.received = True
+        raise KeyboardInterrupt
+
+
+def _check_video_settings(args: argparse.Namespace) -> tuple[int, int]:
+    """The video's (width, height), after every setting that sizes the work is checked (one line each)."""
+    from ipp_bench.config import check_integer, check_number
+
+    size = _parse_size(args.size)
+    check_integer("--fps", args.fps, *FPS_RANGE)
+    check_number("--speedup", args.speedup, *SPEEDUP_RANGE)
+    check_number("--hold", args.hold, *HOLD_RANGE_S, unit="s")
+    if not CRF_RANGE[0] <= args.crf <= CRF_RANGE[1]:
+        raise ValueError(f"--crf {args.crf} is invalid: libx264 takes {CRF_RANGE[0]}-{CRF_RANGE[1]}")
+    if args.budget is not None:
+        check_number("--budget", args.budget, 0.0, low_open=True, unit="s")
+    return size
+
+
 def run_demo(args: argparse.Namespace) -> int:
-    """Runs ``ipp-bench demo``; returns the process exit code."""
+    """Runs ``ipp-bench demo``; returns the process exit code (2: bad arguments, before anything
+    flies; 1: the episode or the video failed part-way; 143: SIGTERM). A video or plot is complete
+    or absent: a file that was at the output path is replaced only by a finished one."""
     try:
-        size = _parse_size(args.size)
-        if args.fps < 1 or args.speedup <= 0 or args.hold < 0:
-            raise ValueError("--fps must be >= 1, --speedup > 0 and --hold >= 0")
-        if not CRF_RANGE[0] <= args.crf <= CRF_RANGE[1]:
-            raise ValueError(f"--crf {args.crf} is invalid: libx264 takes {CRF_RANGE[0]}-{CRF_RANGE[1]}")
+        size = _check_video_settings(args)
         out = Path(args.out)
         if out.suffix.lower() != ".mp4":
             raise ValueError(f"--out {args.out!r} is invalid: the demo writes an .mp4")
         png = Path(args.compare_out) if args.compare_out else out.with_name(out.stem + "_compare.png")
-        if args.compare:
-            from ipp_bench.planners import make_planner
-
-            make_planner(args.compare)  # a bad spec fails here, before any mission flies
-            if png.suffix.lower() != ".png":
-                raise ValueError(f"--compare-out {str(png)!r} is invalid: the comparison plot is a .png")
+        if args.compare and png.suffix.lower() != ".png":
+            raise ValueError(f"--compare-out {str(png)!r} is invalid: the comparison plot is a .png")
+        make_sim_env(args.task, args.budget).close()  # first: without [sim] that is what to install
         from ipp_bench.planners import make_planner
 
+        if args.compare:
+            make_planner(args.compare)  # a bad spec fails here, before any mission flies
         make_planner(args.planner)
-        make_sim_env(args.task, args.budget).close()  # a non-MuJoCo task fails here too
         for path in [out] + ([png] if args.compare else []):
             _check_writable(path)
+    except (ValueError, ImportError, RuntimeError) as err:
+        return _error(str(err))
+    sigterm = _SigtermAsInterrupt()
+    main_thread = threading.current_thread() is threading.main_thread()  # only there can a handler be set
+    previous = signal.signal(signal.SIGTERM, sigterm) if main_thread else None
+    try:
+        return _fly_and_write(args, size, out, png)
+    except KeyboardInterrupt:
+        if not sigterm.received:
+            raise  # Ctrl-C: the command line's one line and exit status 130
+        print(f"ipp-bench demo: terminated; {out} left as it was", file=sys.stderr)
+        return EXIT_TERMINATED
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _fly_and_write(args: argparse.Namespace, size: tuple[int, int], out: Path, png: Path) -> int:
+    from ipp_bench.data import OutputWriteError
+    from ipp_bench.envs import short_task_id
+
+    from .leaderboard import _one_line
+
+    def failed(planner: str, err: Exception, kept: Path) -> int:
+        return _error(f"episode {short_task_id(args.task)} {planner} seed {args.seed} failed: {_one_line(err)}; "
+                      f"{kept} left as it was", EXIT_FAILED)
+
+    try:
         log, frames = record(args.task, args.planner, args.seed, str(out), args.budget, size, args.fps,
                              args.speedup, args.crf, args.hold, progress=not args.no_progress)
-    except (ValueError, ImportError, RuntimeError) as err:
-        print(f"ipp-bench demo: error: {err}", file=sys.stderr)
-        return 2
+    except OutputWriteError as err:
+        return _error(str(err), EXIT_FAILED)
+    except Exception as err:  # the planner raised part-way: nothing replaced the old video
+        return failed(args.planner, err, out)
     m = log.final
     print(f"{out}: {frames} frames, {size[0]}x{size[1]} @ {args.fps} fps; {args.planner} flew "
           f"{m['time_s']:.2f} s ({m['distance_m']:.0f} m, {log.decisions} decisions): uncertainty reduction "
@@ -180,12 +245,13 @@ def run_demo(args: argparse.Namespace) -> int:
                 other = fly_episode(env, args.compare, args.seed)
             finally:
                 env.close()
-            cfg = env.config.mission
-            compare_plot([log, other], cfg.budget_s, cfg.report_times, str(png),
-                         f"{args.task}, seed {args.seed}")
-        except (ValueError, ImportError, RuntimeError) as err:
-            print(f"ipp-bench demo: error: {err}", file=sys.stderr)
-            return 2
+        except Exception as err:
+            return failed(args.compare, err, png)
+        cfg = env.config.mission
+        try:
+            compare_plot([log, other], cfg.budget_s, cfg.report_times, str(png), f"{args.task}, seed {args.seed}")
+        except OutputWriteError as err:
+            return _error(str(err), EXIT_FAILED)
         o = other.final
         print(f"{png}: {args.compare} flew {o['time_s']:.1f} s: uncertainty reduction "
               f"{o['uncertainty_reduction_pct']:.1f} %, RMSE reduction {o['rmse_reduction_pct']:.1f} %")

@@ -75,6 +75,7 @@ def init_worker(owner_pid: int | None = None) -> None:
     run's process), Ctrl-C is left to the owner, and the worker exits when the owner is gone."""
     limit_blas_threads()
     if owner_pid is not None:
+        _quiet_worker()
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         threading.Thread(target=_exit_with_owner, args=(owner_pid, os.getppid()), daemon=True,
                          name="ipp-bench-owner-watch").start()
@@ -98,8 +99,18 @@ def _exit_with_owner(owner_pid: int, parent_pid: int) -> None:
     os._exit(1)
 
 
+def _quiet_worker() -> None:
+    """A worker does not repeat what the run's process has already said once (a task's newer version)."""
+    import warnings
+
+    from ..envs.registry import OutdatedTaskWarning
+
+    warnings.filterwarnings("ignore", category=OutdatedTaskWarning)
+
+
 def _call_in_worker(fn: Callable[[J], R], job: J) -> R:
     init_worker()
+    _quiet_worker()
     return fn(job)
 
 
@@ -209,6 +220,41 @@ class _stderr_kept_unless_failed:
         return False
 
 
+#: [s] how long a Ray cluster address has to answer (a gRPC connection made ready) before the run is refused
+RAY_CONNECT_TIMEOUT_S = 10.0
+
+
+def _require_answer(address: str, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
+    """Raise ExecutorError unless the Ray cluster at ``address`` (``host:port``, ``ray://host:port``,
+    ``auto``) accepts a gRPC connection within ``timeout_s``: its GCS (or Ray Client server) speaks
+    gRPC, a closed port or a host or listener that answers nothing does not."""
+    if address in ("auto", "local"):
+        return  # looked up by ray.init itself (a ConnectionError when there is none)
+    try:
+        import grpc
+        from ray._private import services
+    except ImportError:  # pragma: no cover (Ray brings grpcio)
+        return
+    try:
+        target = address[len("ray://"):] if address.startswith("ray://") else \
+            services.canonicalize_bootstrap_address(address)
+    except Exception:
+        raise ExecutorError(f"--address {address!r} is invalid: expected host:port (e.g. 10.0.0.5:6379), "
+                            "ray://host:port or auto") from None
+    if target is None:
+        return
+    channel = grpc.insecure_channel(target)
+    try:
+        grpc.channel_ready_future(channel).result(timeout=timeout_s)
+    except grpc.FutureTimeoutError:
+        raise ExecutorError(
+            f"no Ray cluster answers at {address!r} (no connection within {timeout_s:g} s): start one with "
+            "'ray start --head' or pass the address of a running one; without --address (and RAY_ADDRESS) a "
+            "local Ray is started for the run") from None
+    finally:
+        channel.close()
+
+
 class RayExecutor:
     """One Ray task per job on a Ray cluster.
 
@@ -235,6 +281,7 @@ class RayExecutor:
         if ray.is_initialized():
             self.where = "the Ray already initialised in this process"
         elif self.address:
+            _require_answer(self.address)  # ray.init itself waits for minutes on an address that answers nothing
             try:
                 with _stderr_kept_unless_failed():  # Ray's C++ client logs every failed retry
                     ray.init(address=self.address, log_to_driver=False)

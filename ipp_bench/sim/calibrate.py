@@ -222,7 +222,8 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
 
 
 def fly_calibration_missions(task_id: str, n_fields: int, planners=CALIBRATION_PLANNERS,
-                             verbose: bool = True, budget_s: float | None = None) -> list[tuple[list[tuple[list, list, float]], np.ndarray]]:
+                             verbose: bool = True, budget_s: float | None = None,
+                             ) -> list[tuple[list[tuple[list, list, float]], np.ndarray]]:
     """Full missions of ``planners`` on ``n_fields`` calibration episodes: each mission's Kalman
     batches ``(read-outs, values, time)`` as fused (:attr:`MuJoCoMission.update_log`) and its truth."""
     from ipp_bench.envs import make_env
@@ -403,7 +404,8 @@ def main(argv: list[str] | None = None) -> int:
                         "two commands compose in either order)")
     p.add_argument("--neighbour-corr", type=float, default=None,
                    help="fit the error model with this correlation of neighbouring cells' persistent errors "
-                        "(default: the task's persistent_neighbour_corr; it is measured, never fitted, and not written)")
+                        "(default: the task's persistent_neighbour_corr; it is measured, never fitted, and not "
+                        "written)")
     p.add_argument("--write", action="store_true", help="write the fitted constants into the task file")
     args = p.parse_args(argv)
     if args.fields < 1 or args.positions < 1 or args.missions < 1 or args.evaluations < 1:

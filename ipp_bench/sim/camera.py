@@ -67,7 +67,7 @@ class EpisodeConditions:
     white_balance: tuple[float, float, float]  # [-] per-channel gains (R, G, B)
 
     @staticmethod
-    def draw(model: CameraModel, rng: np.random.Generator) -> "EpisodeConditions":
+    def draw(model: CameraModel, rng: np.random.Generator) -> EpisodeConditions:
         lo, hi = model.sun_zenith_deg
         zenith = math.radians(rng.uniform(lo, hi))
         azimuth = rng.uniform(0.0, 2.0 * math.pi)
@@ -79,7 +79,7 @@ class EpisodeConditions:
         return EpisodeConditions(tuple(float(v) for v in sun), float(gain), tuple(float(v) for v in wb))
 
     @staticmethod
-    def nominal() -> "EpisodeConditions":
+    def nominal() -> EpisodeConditions:
         return EpisodeConditions((0.0, 0.0, -1.0), 1.0, (1.0, 1.0, 1.0))
 
 

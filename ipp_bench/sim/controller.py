@@ -114,8 +114,8 @@ class CascadedController:
     more than the physics step itself.
     """
 
-    def __init__(self, params: QuadrotorParams = QuadrotorParams(), gains: ControllerGains = ControllerGains(),
-                 yaw: float = 0.0) -> None:
+    def __init__(self, params: QuadrotorParams = QuadrotorParams(),  # noqa: B008 (frozen dataclasses)
+                 gains: ControllerGains = ControllerGains(), yaw: float = 0.0) -> None:
         self.params, self.gains = params, gains
         self.yaw = float(yaw)
         g = gains

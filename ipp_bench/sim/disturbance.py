@@ -66,7 +66,7 @@ class DisturbanceConfig:
         return self.wind_max == 0 and self.gust_std == 0
 
     @staticmethod
-    def none() -> "DisturbanceConfig":
+    def none() -> DisturbanceConfig:
         """No wind, perfect state (v0)."""
         return DisturbanceConfig(wind_max=0.0, gust_std=0.0, rotor_drag=0.0, pos_bias_std=0.0, pos_bias_std_z=0.0,
                                  pos_noise_std=0.0, vel_noise_std=0.0, att_bias_std_deg=0.0,

@@ -35,10 +35,14 @@ def load(task_id: str = DEFAULT_TASK, *, seed: int | None = 0, **overrides: Any)
         **overrides: as ``gym.make``: config fields by name, ``sim=SimConfig(...)``, ``airframe=``.
 
     Raises:
-        ValueError: ``task_id`` is not a MuJoCo deployment task, or an override is invalid.
+        ValueError: ``task_id`` is not a MuJoCo deployment task, ``seed`` is not None or an integer >= 0,
+            or an override is invalid.
     """
     import ipp_bench.envs as envs
+    from ipp_bench.config import check_integer
 
+    if seed is not None:  # before the world is built: numpy's own error names no argument
+        check_integer("load(seed)", seed, 0)
     spec = envs.task_spec(task_id)
     if "deployment" not in spec.tags:  # the MuJoCo tasks carry the tag
         raise ValueError(f"task {task_id!r} is not a MuJoCo deployment: valid are {envs.tagged('deployment')}")

@@ -21,15 +21,14 @@ demo grabs video frames).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
-from ipp_bench.sim.gl import mujoco
-
 from ipp_bench.sim.controller import CascadedController, ContinuousLeg, ControllerGains, Leg, continuous_durations
 from ipp_bench.sim.disturbance import DisturbanceConfig, Disturbances, perturb_quat, quat_to_mat
+from ipp_bench.sim.gl import mujoco
 from ipp_bench.sim.quadrotor import RotorSpeeds
 from ipp_bench.sim.scene import WeedScene
 
@@ -57,7 +56,7 @@ class FlightConfig:
             raise ValueError(f"FlightConfig.max_extra_s must be >= 0 [s], got {self.max_extra_s}")
 
     @staticmethod
-    def v0() -> "FlightConfig":
+    def v0() -> FlightConfig:
         return FlightConfig(mode="stop")
 
 
@@ -73,8 +72,8 @@ class Flight:
     """
 
     def __init__(self, scene: WeedScene, speed: float = 2.0, cfg: FlightConfig = FlightConfig(),
-                 gains: ControllerGains = ControllerGains(),
-                 disturbances: DisturbanceConfig = DisturbanceConfig.none()) -> None:
+                 gains: ControllerGains = ControllerGains(),  # noqa: B008 (frozen dataclasses)
+                 disturbances: DisturbanceConfig = DisturbanceConfig.none()) -> None:  # noqa: B008
         if not speed > 0.0:
             raise ValueError(f"Flight speed must be > 0 [m/s], got {speed}")
         self.scene, self.cfg = scene, cfg
@@ -200,7 +199,7 @@ class Flight:
         mujoco.mj_step(self._m, d)
         self.steps += 1
 
-    def hover(self, duration_s: float, at=None, on_step: Callable[["Flight"], bool | None] | None = None) -> None:
+    def hover(self, duration_s: float, at=None, on_step: Callable[[Flight], bool | None] | None = None) -> None:
         """Holds position ``at`` (default: here) for ``duration_s`` seconds."""
         target = self.position if at is None else np.asarray(at, dtype=np.float64)
         target, zero = tuple(target.tolist()), (0.0, 0.0, 0.0)
@@ -210,7 +209,7 @@ class Flight:
             if on_step is not None and on_step(self):
                 return
 
-    def follow(self, target, on_step: Callable[["Flight"], bool | None] | None = None,
+    def follow(self, target, on_step: Callable[[Flight], bool | None] | None = None,
                time_limit_s: float | None = None) -> ContinuousLeg:
         """Flies a velocity-continuous leg to ``target`` for exactly its reference duration.
 
@@ -240,7 +239,7 @@ class Flight:
             self.ref_pos, self.ref_vel, self.ref_time = leg.end.copy(), leg.end_velocity(), end
         return leg
 
-    def fly_to(self, target, on_step: Callable[["Flight"], bool | None] | None = None,
+    def fly_to(self, target, on_step: Callable[[Flight], bool | None] | None = None,
                time_limit_s: float | None = None) -> bool:
         """Flies a straight leg from here to ``target`` and settles there ("stop" mode, v0).
 

@@ -27,7 +27,7 @@ read-only access to the platform's world and logs. Against the graph's straight 
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

@@ -24,10 +24,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ipp_bench.sim.gl import mujoco
+
+if TYPE_CHECKING:  # imported where it is used (dm_control loads MuJoCo's GL backend)
+    from dm_control import mjcf
 
 GRAVITY = 9.81  # [m/s^2]
 ROTOR_MODELS = ("thrust", "speed")
@@ -129,7 +133,7 @@ AIRFRAME_NAMES = ("one body with a free joint (its centre of mass at its origin)
                   "down: the downward camera")
 
 
-def airframe_mjcf(params: QuadrotorParams = QuadrotorParams()) -> "mjcf.RootElement":
+def airframe_mjcf(params: QuadrotorParams = QuadrotorParams()) -> mjcf.RootElement:  # noqa: B008 (frozen)
     """The shipped airframe as a PyMJCF model (what ``assets/quadrotor.xml`` holds).
 
     The model is what :class:`~ipp_bench.sim.scene.WeedScene` attaches (``airframe=``): one free

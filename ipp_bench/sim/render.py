@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import atexit
 import math
+import os
 import weakref
 
 import numpy as np
 
 from ipp_bench.sim import gl as _gl
 from ipp_bench.sim.gl import mujoco
-
 from ipp_bench.sim.scene import WeedScene
 
 
@@ -50,6 +50,24 @@ def follow_azimuth(current: float, target: float, rate: float) -> float:
 
 #: renderers with a GL context: closed at interpreter exit by :func:`_close_open_renderers`
 _OPEN: weakref.WeakSet = weakref.WeakSet()
+
+#: the process that made this interpreter's first GL context (None: none made yet). A process forked
+#: from it (``fork``, gymnasium's default ``AsyncVectorEnv`` start method on Linux before Python 3.14)
+#: inherits the GL driver's state but not its threads (Mesa's llvmpipe rasterisers, its shader-cache
+#: queue): the first frame it renders waits for them for ever. It refuses to render instead.
+_GL_OWNER_PID: int | None = None
+
+FORKED_AFTER_RENDERING = (
+    "this process was forked from one that had already rendered with OpenGL (MUJOCO_GL={backend}): the GL "
+    "driver's threads do not survive fork, so rendering here would hang. Start the workers with 'forkserver' "
+    "or 'spawn', e.g. gym.make_vec(task, n, vectorization_mode='async', vector_kwargs={{'context': "
+    "'forkserver'}}), or make the vector env before the first frame is rendered")
+
+
+def check_gl_usable() -> None:
+    """Raise RuntimeError (:data:`FORKED_AFTER_RENDERING`) in a process forked from one that rendered."""
+    if _GL_OWNER_PID is not None and _GL_OWNER_PID != os.getpid():
+        raise RuntimeError(FORKED_AFTER_RENDERING.format(backend=os.environ.get("MUJOCO_GL", "<unset>")))
 
 
 @atexit.register
@@ -85,6 +103,7 @@ class SceneRenderer:
         self._opt = None
         self._pert = None
         self._texture_version = -1
+        self._pid: int | None = None  # the process that made the context
         self._down = mujoco.MjvCamera()
         self._down.type = mujoco.mjtCamera.mjCAMERA_FIXED
         self._down.fixedcamid = scene.camera_id
@@ -94,6 +113,8 @@ class SceneRenderer:
         return self._con is not None
 
     def _open(self) -> None:
+        global _GL_OWNER_PID
+        check_gl_usable()
         model = self.scene.model
         width, height = model.vis.global_.offwidth, model.vis.global_.offheight
         try:
@@ -101,7 +122,10 @@ class SceneRenderer:
             gl_context.make_current()
         except Exception as err:  # any backend failure: explain which library / apt package
             raise _gl.require_gl(err) from err
+        if _GL_OWNER_PID is None:
+            _GL_OWNER_PID = os.getpid()
         self._gl = gl_context
+        self._pid = os.getpid()
         _OPEN.add(self)  # closed before EGL's own atexit terminates the display (see _close_open_renderers)
         atexit.unregister(_close_open_renderers)
         atexit.register(_close_open_renderers)  # after EGL's (made with the first context): runs before it
@@ -148,6 +172,9 @@ class SceneRenderer:
 
     def close(self) -> None:
         """Frees the GL resources (idempotent)."""
+        if self._con is not None and self._pid != os.getpid():  # a forked copy: its GL calls would hang
+            self._con = self._scn = self._gl = None
+            return
         if self._con is not None:
             try:
                 self._gl.make_current()
@@ -158,7 +185,7 @@ class SceneRenderer:
                 self._gl.free()
                 self._gl = None
 
-    def __enter__(self) -> "SceneRenderer":
+    def __enter__(self) -> SceneRenderer:
         return self
 
     def __exit__(self, *exc) -> None:

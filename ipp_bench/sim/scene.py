@@ -26,11 +26,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from ipp_bench.sim.gl import mujoco
-
 from dm_control import mjcf  # noqa: E402  (after ipp_bench.sim.gl chose the GL backend)
 
+from ipp_bench.sim.gl import mujoco
 from ipp_bench.sim.quadrotor import QuadrotorParams, airframe_mjcf, airframe_params, free_joint
 
 
@@ -75,8 +73,8 @@ class DeploymentPhysics(mjcf.Physics):
         del nstep
 
 
-def build_mjcf(rows: int, cols: int, resolution: float, airframe: "mjcf.RootElement | None" = None,
-               cfg: SceneConfig = SceneConfig()) -> "mjcf.RootElement":
+def build_mjcf(rows: int, cols: int, resolution: float, airframe: mjcf.RootElement | None = None,
+               cfg: SceneConfig = SceneConfig()) -> mjcf.RootElement:
     """Composes the scene with ``airframe`` attached (default: the shipped quadrotor).
 
     Returns:
@@ -146,8 +144,8 @@ class WeedScene:
     """
 
     def __init__(self, rows: int, cols: int, resolution: float,
-                 quad: QuadrotorParams = QuadrotorParams(), cfg: SceneConfig = SceneConfig(),
-                 airframe: "mjcf.RootElement | None" = None) -> None:
+                 quad: QuadrotorParams = QuadrotorParams(), cfg: SceneConfig = SceneConfig(),  # noqa: B008 (frozen)
+                 airframe: mjcf.RootElement | None = None) -> None:
         self.rows, self.cols, self.resolution = int(rows), int(cols), float(resolution)
         self.cfg = cfg
         self.mjcf_model = build_mjcf(self.rows, self.cols, self.resolution,

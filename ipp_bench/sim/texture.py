@@ -49,7 +49,7 @@ class TexturePalette:
                              f"got {self.margin_weed_share}")
 
     @staticmethod
-    def v0() -> "TexturePalette":
+    def v0() -> TexturePalette:
         """The v0 texture: plant margins keep the weed colour."""
         return TexturePalette(margin_texels=0, fine_structure=0.0)
 

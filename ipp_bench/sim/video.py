@@ -55,7 +55,6 @@ class DemoVideo:
 
     def __init__(self, env, path: str, title: str, size=(1280, 720), fps: int = 10, speedup: float = 4.0,
                  crf: int = 32, hold_s: float = 1.0, progress=None):
-        import imageio_ffmpeg
         from matplotlib import colormaps
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.cm import ScalarMappable
@@ -161,12 +160,7 @@ class DemoVideo:
         shape = self.mission.truth.shape
         self._map_index = [self._upsample_index(b, shape) for b in (self._box_mean, self._box_std)]
 
-        self._writer = imageio_ffmpeg.write_frames(
-            str(path), (w, h), fps=self.fps, codec="libx264", pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
-            quality=None, macro_block_size=16,
-            output_params=["-crf", str(int(crf)), "-preset", "medium", "-threads", "2",
-                           "-movflags", "+faststart", "-tune", "animation"])
-        self._writer.send(None)
+        self._writer = H264Writer(path, (w, h), self.fps, crf)
 
     def _box(self, ax) -> tuple[int, int, int, int]:
         """Inner pixel box of ``ax`` as (row0, row1, col0, col1), rows from the top."""
@@ -286,18 +280,129 @@ class DemoVideo:
                                                   animated=True))
 
     def abort(self) -> None:
-        """Stops the encoder after a failure (the partial file is left as it is)."""
-        try:
-            self._writer.close()
-        except Exception:  # the encoder may already be gone
-            pass
+        """Stops the encoder after a failure: the partial video is removed, a file that was at the
+        output path before is left as it was."""
+        self._writer.abort()
 
     def close(self, t_end: float) -> int:
-        """Writes the hold frames, finishes the file, returns the number of frames."""
+        """Writes the hold frames, finishes the file (in place only now), returns the number of frames.
+
+        Raises:
+            OutputWriteError: the encoder could not write the video (a full disk, say); the old file,
+                if any, is left as it was.
+        """
         for _ in range(int(round(self.hold_s * self.fps))):
             self.grab(t_end)
         self._writer.close()
         return self.frames
+
+
+class H264Writer:
+    """Encodes rgb24 frames to an H.264 mp4 with ffmpeg (imageio-ffmpeg's binary), atomically.
+
+    ffmpeg writes a temporary sibling of ``path`` (:func:`ipp_bench.data.temporary_sibling`); only
+    :meth:`close`, after ffmpeg has finished without error, renames it into place. An interrupted or
+    failed video (Ctrl-C, SIGTERM, a planner that raised, a full disk) never replaces the file that
+    was there: :meth:`abort` stops ffmpeg and removes the temporary file (after SIGKILL it is left
+    beside the old one, hidden, and the old one is intact). ffmpeg's exit status and its last error
+    line are checked, so a full disk is an error, not a truncated video.
+    """
+
+    def __init__(self, path, size: tuple[int, int], fps: int, crf: int):
+        import subprocess
+        import tempfile
+        from fractions import Fraction
+        from pathlib import Path
+
+        import imageio_ffmpeg
+
+        from ipp_bench.data import temporary_sibling
+
+        self.path = Path(path)
+        self.tmp = temporary_sibling(self.path)
+        self._log = tempfile.TemporaryFile()  # ffmpeg's messages (a pipe could fill and block it)
+        w, h = size
+        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo", "-s", f"{w}x{h}",
+               "-pix_fmt", "rgb24", "-r", str(Fraction(fps).limit_denominator()), "-i", "-", "-an",
+               "-vcodec", "libx264", "-pix_fmt", "yuv420p", "-v", "warning",
+               "-crf", str(int(crf)), "-preset", "medium", "-threads", "2", "-movflags", "+faststart",
+               "-tune", "animation", str(self.tmp)]
+        # its own session: Ctrl-C in a terminal reaches this process, which stops ffmpeg itself
+        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log,
+                                      start_new_session=True)
+
+    def _failed(self, what: str):
+        from ipp_bench.data import OutputWriteError
+
+        try:  # it is ending: let it say why
+            self._proc.wait(timeout=10.0)
+        except Exception:
+            pass
+        self._stop()
+        self._log.seek(0)
+        lines = [ln.strip() for ln in self._log.read().decode(errors="replace").splitlines() if ln.strip()]
+        self._remove_tmp()
+        rc = self._proc.returncode
+        if lines:
+            cause = lines[-1]
+        elif rc is not None and rc < 0:
+            import signal
+
+            cause = f"ffmpeg was killed by {signal.Signals(-rc).name}"  # e.g. SIGXFSZ: past the file size limit
+        else:
+            cause = what
+        return OutputWriteError(f"cannot write {self.path}: {cause} (the video encoder ffmpeg stopped; "
+                                f"{'the old file is left as it was' if self.path.exists() else 'nothing was written'})")
+
+    def send(self, frame: np.ndarray) -> None:
+        """Writes one (H, W, 3) uint8 frame."""
+        try:
+            self._proc.stdin.write(np.ascontiguousarray(frame, dtype=np.uint8).tobytes())
+        except OSError:  # ffmpeg has gone (a full disk, say): its own message says why
+            raise self._failed("it exited while frames were sent") from None
+
+    def close(self) -> None:
+        """Finishes the video and renames it into place; raises OutputWriteError if ffmpeg failed."""
+        import os
+
+        try:
+            self._proc.stdin.close()
+        except OSError:
+            pass
+        if self._proc.wait() != 0:
+            raise self._failed(f"ffmpeg exited with status {self._proc.returncode}")
+        try:
+            with open(self.tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+            os.replace(self.tmp, self.path)
+        except OSError as err:
+            self._remove_tmp()
+            from ipp_bench.data import OutputWriteError
+
+            raise OutputWriteError(f"cannot write {self.path}: {err.strerror or err}") from None
+        finally:
+            self._log.close()
+
+    def abort(self) -> None:
+        """Stops ffmpeg and removes the partial video (the file at ``path``, if any, is untouched)."""
+        self._stop()
+        self._remove_tmp()
+        self._log.close()
+
+    def _stop(self) -> None:
+        if self._proc.poll() is None:
+            self._proc.kill()
+        self._proc.wait()
+        try:
+            self._proc.stdin.close()
+        except OSError:
+            pass
+
+    def _remove_tmp(self) -> None:
+        try:
+            self.tmp.unlink()
+        except OSError:
+            pass
 
 
 def expected_frames(t_end: float, fps: int, speedup: float, hold_s: float) -> int:

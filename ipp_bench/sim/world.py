@@ -22,6 +22,7 @@ import numpy as np
 
 from ipp_bench.config import GridConfig, SensorConfig
 from ipp_bench.sensor import Observation, Sensor, restrict
+from ipp_bench.sim import vision_v0
 from ipp_bench.sim.camera import CameraModel, EpisodeConditions, form_image, motion_blur_px
 from ipp_bench.sim.controller import ControllerGains
 from ipp_bench.sim.disturbance import DisturbanceConfig
@@ -30,7 +31,6 @@ from ipp_bench.sim.quadrotor import ROTOR_MODELS, QuadrotorParams
 from ipp_bench.sim.render import SceneRenderer
 from ipp_bench.sim.scene import SceneConfig, WeedScene
 from ipp_bench.sim.texture import TexturePalette, weed_texture
-from ipp_bench.sim import vision_v0
 from ipp_bench.sim.vision import GroundProjector, WeedSegmenter
 
 MEASUREMENTS = ("camera", "camera+noise", "truth")
@@ -74,11 +74,11 @@ class SimConfig:
     def image_size(self) -> int:
         return self.camera.image_size
 
-    def with_image_size(self, size: int) -> "SimConfig":
+    def with_image_size(self, size: int) -> SimConfig:
         return dataclasses.replace(self, camera=dataclasses.replace(self.camera, image_size=int(size)))
 
     @staticmethod
-    def from_dict(section: dict) -> "SimConfig":
+    def from_dict(section: dict) -> SimConfig:
         """The ``[sim]`` section of a task file: top-level fields, and one table per sub-section
         (``[sim.camera]``, ``[sim.flight]``, ...); what a table leaves out keeps its default.
 
@@ -108,7 +108,7 @@ class SimConfig:
                                  f"{list(SIM_SECTIONS)}")
         return dataclasses.replace(base, **subs, **top)
 
-    def replace(self, **overrides) -> "SimConfig":
+    def replace(self, **overrides) -> SimConfig:
         """A copy with leaf fields set by their (unique) names: ``replace(image_size=480, wind_max=2.0)``.
 
         Raises:
@@ -128,7 +128,7 @@ class SimConfig:
         return dataclasses.replace(self, **new_subs, **top)
 
     @staticmethod
-    def v0() -> "SimConfig":
+    def v0() -> SimConfig:
         """The v0 deployment: ideal 128 px camera plus the sensor model's noise, stop at every waypoint."""
         return SimConfig(camera=V0_CAMERA, segmenter=WeedSegmenter(open_px=0, close_px=0), palette=TexturePalette.v0(),
                          flight=FlightConfig.v0(), disturbances=DisturbanceConfig.none(),
@@ -237,7 +237,7 @@ class WeedWorld:
                       self.scene.model.light_diffuse[self.scene.light_id].copy(),
                       self.scene.model.light_ambient[self.scene.light_id].copy())
 
-    def _v0_projector(self, shape) -> "vision_v0.GroundProjector":
+    def _v0_projector(self, shape) -> vision_v0.GroundProjector:
         key = ("v0", shape[:2])
         p = self._projectors.get(key)
         if p is None:

@@ -10,7 +10,8 @@ import ipp_bench.envs as envs
 from ipp_bench.envs import GraphIPPEnv
 
 #: the large tasks (128 x 128 cells, a 2-4 s roadmap per env) have their own, shorter tests: test_large.py
-GRAPH_TASKS = [t for t, s in envs.TASKS.items() if s.entry_point.endswith("graph:GraphIPPEnv") and "large" not in s.tags]
+GRAPH_TASKS = [t for t, s in envs.TASKS.items()
+               if s.entry_point.endswith("graph:GraphIPPEnv") and "large" not in s.tags]
 
 
 def rollout(env, seed, steps=25):
@@ -30,8 +31,30 @@ def rollout(env, seed, steps=25):
 
 @pytest.mark.parametrize("task", GRAPH_TASKS)
 def test_check_env(task):
+    """Without a warning: every Box has finite bounds (the belief mean's: any finite float32)."""
+    import warnings
+
     env = gym.make(task)
-    check_env(env.unwrapped, skip_render_check=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped, skip_render_check=True)
+    assert [str(w.message) for w in caught] == []
+
+
+def test_node_feature_bounds_are_the_real_ones():
+    env = gym.make("ipp_bench/Grid15Eval-v1").unwrapped
+    box = env.observation_space["node_features"]
+    gp = env.config.gp
+    np.testing.assert_array_equal(box.low[0], [0, 0, 0, np.finfo(np.float32).min, 0])
+    assert box.high[0, :3].tolist() == [1, 1, 1] and box.high[0, 4] == pytest.approx(np.sqrt(gp.signal_variance
+                                                                                            + gp.nugget), rel=1e-4)
+    obs, _ = env.reset(seed=0)
+    feats = [obs["node_features"]]
+    while obs["action_mask"].any():
+        obs, *_ = env.step(int(np.flatnonzero(obs["action_mask"])[0]))
+        feats.append(obs["node_features"])
+    assert all(box.contains(f) for f in feats)
+    assert max(f[:, 4].max() for f in feats) <= box.high[0, 4]
 
 
 @pytest.mark.parametrize("task", GRAPH_TASKS)

@@ -94,7 +94,8 @@ def test_make_env_is_the_one_way_to_a_tasks_env():
         envs.make_env("Grid15Eval-v1", budget_s=-1.0)
 
 
-# -- task files (issue 19) --------------------------------------------------------------------------
+# -- task files ----------------------------------------------------------------------------------
+import os  # noqa: E402
 import shutil  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -116,6 +117,14 @@ BROKEN = {  # file content -> (line, what the report says)
                 "graph.k = 20.0 is invalid: expected an integer"),
     "unknown-field": (GOOD.replace("k = 20", "kk = 20"), GOOD.splitlines().index("k = 20") + 1,
                       "unknown fields ['kk']"),
+    # nested past the parser's recursion (its RecursionError), or past a task file's depth
+    "nested-array": (GOOD + "[sim]\ndeep = " + "[" * 5000 + "]" * 5000 + "\n", None,
+                     "nests its tables or arrays too deeply to read"),
+    "nested-table": (GOOD + "[sim]\ndeep = " + "{a = " * 5000 + "1" + "}" * 5000 + "\n", None,
+                     "nests its tables or arrays too deeply to read"),
+    "nested-deep": (GOOD.replace("k = 20", "k = " + "[" * 20 + "]" * 20), GOOD.splitlines().index("k = 20") + 1,
+                    "config.graph.k nests more than 6 tables or arrays deep"),
+    "endless": (GOOD + "# padding\n" * 200_000, None, "a task file has at most 1048576 bytes"),
 }
 
 
@@ -187,3 +196,50 @@ def test_the_command_line_works_beside_a_broken_task_file_and_takes_a_task_path(
     assert "skipped task file" in listed.stderr and "zz_broken.toml:" in listed.stderr
     ran = cli("evaluate", "--task", str(mine), "--planner", "greedy")
     assert ran.returncode == 0 and "ipp_bench/Mine-v0" in ran.stdout and "Traceback" not in ran.stderr, ran.stderr
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs (POSIX)")
+def test_a_task_file_that_is_a_fifo_is_refused_without_waiting_for_a_writer(tmp_path):
+    """Reading a FIFO waits for a writer for ever: it is refused from its type, never opened."""
+    fifo = tmp_path / "mine.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(TaskFileError, match=r"mine.toml: cannot be read: it is a FIFO \(named pipe\), not a regular"):
+        load_task(fifo)
+    with pytest.raises(TaskFileError, match="it is a device"):
+        load_task("/dev/zero")  # endless
+    with pytest.raises(TaskFileError, match="it is a folder"):
+        load_task(tmp_path)
+
+
+@pytest.mark.parametrize("path", [None, 5, ""], ids=["None", "int", "empty"])
+def test_load_task_names_its_argument(path):
+    with pytest.raises(ValueError, match=r"load_task\(path\) = .* is invalid: expected the path of a task file"):
+        load_task(path)
+
+
+def test_a_setting_given_twice_is_refused():
+    with pytest.raises(ValueError, match=r"--env budget_s is given twice \(budget_s=20 and budget_s=30\): give each "
+                                         "setting once"):
+        envs.parse_overrides(["budget_s=20", "budget_s=30"])
+
+
+def test_gym_make_names_a_config_of_the_wrong_type():
+    with pytest.raises(ValueError, match=r"config = 5 is invalid: expected an ipp_bench.config.IPPConfig, a dict"):
+        gym.make("ipp_bench/Grid15Eval-v1", config=5)
+
+
+def test_an_outdated_task_is_said_once_in_plain_text_and_never_by_the_workers(tmp_path):
+    """gymnasium's own notice is in colour, in the run's process and again in every worker (9 times a board)."""
+    out = tmp_path / "lb"
+    proc = subprocess.run([sys.executable, "-m", "ipp_bench.cli", "leaderboard", "--tasks", "Grid15Eval-v0",
+                           "Grid20Eval-v0", "--planners", "random", "--episodes", "2", "--backend", "process",
+                           "--workers", "2", "--no-progress", "--out", str(out), "--env", "budget_s=20", "--env",
+                           "report_times=[20]"], cwd=REPO, capture_output=True, text=True, timeout=240,
+                          env={**os.environ, "MUJOCO_GL": "egl"})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for task in ("Grid15Eval", "Grid20Eval"):
+        said = [ln for ln in proc.stderr.splitlines() if f"ipp_bench/{task}-v0 is out of date" in ln]
+        assert len(said) == 1, proc.stderr
+        assert f"the current version of the task is ipp_bench/{task}-v1" in said[0]
+    assert "\x1b[" not in proc.stderr and "You should consider upgrading" not in proc.stderr

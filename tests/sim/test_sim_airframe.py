@@ -24,7 +24,9 @@ HEAVY_QUAD = """
       <freejoint name="root"/>
       <inertial pos="0 0 0" mass="2.2" diaginertia="0.05 0.05 0.09"/>
       <geom type="sphere" size="0.12" density="0" rgba="0.2 0.4 0.8 1"/>
-      <body name="payload" pos="0 0 -0.1"><geom type="box" size="0.05 0.05 0.02" density="0" contype="0" conaffinity="0"/></body>
+      <body name="payload" pos="0 0 -0.1">
+        <geom type="box" size="0.05 0.05 0.02" density="0" contype="0" conaffinity="0"/>
+      </body>
       <site name="rotor0" pos="0.212132 0.212132 0.04"/>
       <site name="rotor1" pos="0.212132 -0.212132 0.04"/>
       <site name="rotor2" pos="-0.212132 -0.212132 0.04"/>
@@ -33,10 +35,14 @@ HEAVY_QUAD = """
     </body>
   </worldbody>
   <actuator>
-    <general name="rotor0" site="rotor0" ctrllimited="true" ctrlrange="0 14" gear="0 0 1 0 0 0.02" dyntype="filterexact" dynprm="0.04"/>
-    <general name="rotor1" site="rotor1" ctrllimited="true" ctrlrange="0 14" gear="0 0 1 0 0 -0.02" dyntype="filterexact" dynprm="0.04"/>
-    <general name="rotor2" site="rotor2" ctrllimited="true" ctrlrange="0 14" gear="0 0 1 0 0 0.02" dyntype="filterexact" dynprm="0.04"/>
-    <general name="rotor3" site="rotor3" ctrllimited="true" ctrlrange="0 14" gear="0 0 1 0 0 -0.02" dyntype="filterexact" dynprm="0.04"/>
+    <general name="rotor0" site="rotor0" ctrllimited="true" ctrlrange="0 14" gear="0 0 1 0 0 0.02"
+             dyntype="filterexact" dynprm="0.04"/>
+    <general name="rotor1" site="rotor1" ctrllimited="true" ctrlrange="0 14" gear="0 0 1 0 0 -0.02"
+             dyntype="filterexact" dynprm="0.04"/>
+    <general name="rotor2" site="rotor2" ctrllimited="true" ctrlrange="0 14" gear="0 0 1 0 0 0.02"
+             dyntype="filterexact" dynprm="0.04"/>
+    <general name="rotor3" site="rotor3" ctrllimited="true" ctrlrange="0 14" gear="0 0 1 0 0 -0.02"
+             dyntype="filterexact" dynprm="0.04"/>
   </actuator>
 </mujoco>
 """

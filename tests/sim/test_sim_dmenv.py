@@ -108,3 +108,47 @@ def test_viewer_loader_and_runtime_without_a_display():
     with pytest.raises(ValueError, match="continuous planner"):
         PlannerPolicy(env, "cmaes")
     env.close()
+
+
+def test_the_viewer_without_a_display_is_one_line(capsys, monkeypatch):
+    from ipp_bench.sim.viewer import main
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert main(["--task", "ipp_bench/MuJoCoWeed15-v1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("python -m ipp_bench.sim.viewer: error: the viewer opens a window and no display was found")
+    assert len(err.strip().splitlines()) == 1 and "ipp-bench demo" in err
+    assert main(["--task", "ipp_bench/Grid15Eval-v1"]) == 2  # checked before any window, display or not
+    assert "is not a MuJoCo deployment" in capsys.readouterr().err
+
+
+@pytest.mark.timeout(120)
+def test_the_viewer_on_a_display_that_does_not_answer_is_one_line():
+    """GLFW cannot open the window (dm_control raises RuntimeError 'Failed to create window')."""
+    import os
+    import subprocess
+    import sys
+
+    def viewer(backend):
+        env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+        env.update({"DISPLAY": ":97"} if backend is None else {"DISPLAY": ":97", "MUJOCO_GL": backend})
+        proc = subprocess.run([sys.executable, "-m", "ipp_bench.sim.viewer"], capture_output=True, text=True,
+                              timeout=100, env=env)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        return proc.stderr.strip().splitlines()
+
+    for backend in (None, "glfw"):
+        assert viewer(backend) == [
+            "python -m ipp_bench.sim.viewer: error: cannot open the viewer's window (GLFW: Failed to create window); "
+            "run it on a desktop or over 'ssh -X'; without a display, 'ipp-bench demo' renders an episode to a video"]
+    assert viewer("egl") == ["python -m ipp_bench.sim.viewer: error: the viewer draws into a window: run it with "
+                             "MUJOCO_GL=glfw (or unset; MUJOCO_GL='egl' renders off-screen only)"]
+
+
+@pytest.mark.parametrize("seed", [-1, "x", 2.5])
+def test_load_names_a_bad_seed(seed):
+    from ipp_bench.sim import load
+
+    with pytest.raises(ValueError, match=r"load\(seed\) = .* is invalid: expected an integer >= 0"):
+        load(seed=seed)

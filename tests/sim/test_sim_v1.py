@@ -10,12 +10,14 @@ from gymnasium.utils.env_checker import check_env
 pytest.importorskip("mujoco")
 
 import ipp_bench.envs as envs  # noqa: E402
-from ipp_bench.belief import GPBelief  # noqa: E402
+from ipp_bench.belief import (
+    GPBelief,  # noqa: E402
+    normalised_innovation,  # noqa: E402
+)
 from ipp_bench.envs.registry import _load  # noqa: E402
-from ipp_bench.sim import calibrate  # noqa: E402
 from ipp_bench.planners.episode import fly_episode  # noqa: E402
+from ipp_bench.sim import calibrate  # noqa: E402
 from ipp_bench.sim.env import MuJoCoIPPEnvV1  # noqa: E402
-from ipp_bench.belief import normalised_innovation  # noqa: E402
 
 TASK = "ipp_bench/MuJoCoWeed15-v1"
 

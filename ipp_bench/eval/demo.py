@@ -219,10 +219,10 @@ def _fly_and_write(args: argparse.Namespace, size: tuple[int, int], out: Path, p
     from ipp_bench.data import OutputWriteError
     from ipp_bench.envs import short_task_id
 
-    from .leaderboard import _one_line
+    from .leaderboard import one_line
 
     def failed(planner: str, err: Exception, kept: Path) -> int:
-        return _error(f"episode {short_task_id(args.task)} {planner} seed {args.seed} failed: {_one_line(err)}; "
+        return _error(f"episode {short_task_id(args.task)} {planner} seed {args.seed} failed: {one_line(err)}; "
                       f"{kept} left as it was", EXIT_FAILED)
 
     try:

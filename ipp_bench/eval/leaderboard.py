@@ -63,7 +63,7 @@ def run_job(job: EpisodeJob) -> list[dict[str, Any]]:
             load_task(job.task_file)
         result = run_episode(job.task, job.planner, job.seed, **dict(job.env_overrides))
     except Exception as err:
-        raise JobError(_one_line(err)) from None
+        raise JobError(one_line(err)) from None
     expected = report_times(job.task, dict(job.env_overrides))
     got = tuple(r["time_s"] for r in result.report)
     if got != expected:
@@ -77,7 +77,7 @@ def run_job(job: EpisodeJob) -> list[dict[str, Any]]:
     return [{"task": job.task, "planner": job.planner, "seed": job.seed, **r, **common} for r in result.report]
 
 
-def _one_line(err: BaseException) -> str:
+def one_line(err: BaseException) -> str:
     """``Type: first line of the message (at file:line in function)``, the innermost frame."""
     lines = str(err).strip().splitlines()
     text = f"{type(err).__name__}: {lines[0]}" if lines else type(err).__name__

@@ -6,7 +6,7 @@ import pytest
 
 import ipp_bench.eval.plan as plan_module
 from ipp_bench.eval.plan import QUICK_EPISODES, QUICK_OVERRIDES, episode_seeds, make_plan
-from ipp_bench.planners import REGISTRY, parse_spec, split_specs
+from ipp_bench.planners import REGISTRY, PlannerError, parse_spec, split_specs
 
 
 def test_episode_seeds_are_deterministic_distinct_and_prefix_stable():
@@ -62,7 +62,7 @@ def test_default_planners_leave_out_what_cannot_load_but_explicit_fails_loudly(m
     plan = make_plan(tasks=["Grid15Eval-v1"], episodes=1, log=notes.append)
     assert plan.planners == ("random",)
     assert any("ghost" in n and "no_such_module" in n for n in notes)
-    with pytest.raises(ImportError, match="no_such_module"):
+    with pytest.raises(PlannerError, match="no_such_module"):
         make_plan(tasks=["Grid15Eval-v1"], planners=["ghost"], episodes=1)
 
 

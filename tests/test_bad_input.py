@@ -119,8 +119,9 @@ def test_read_only_out_is_refused_before_any_episode(capsys, tmp_path):
 
 
 @pytest.mark.parametrize("render, message", [("final.gif", "expected a .png file"),
-                                             ("file/final.png", "is a file, not a folder")],
-                         ids=["suffix", "under-file"])
+                                             ("file/final.png", "is a file, not a folder"),
+                                             ("missing/final.png", "does not exist")],
+                         ids=["suffix", "under-file", "missing-folder"])
 def test_render_path_is_checked_before_the_episode(render, message, capsys, tmp_path):
     (tmp_path / "file").write_text("x")
     rc, out, err = _cli(["evaluate", "--task", "Grid15Eval-v1", "--planner", "random", "--render",

@@ -1,7 +1,9 @@
 """Benchmark tasks: one TOML file per task in ``tasks/``, registered with gymnasium.
 
 A task file holds its id (``ipp_bench/<Name>-v<N>``), entry point, tags and the sections of an
-:class:`~ipp_bench.config.IPPConfig`. Registration is idempotent; ``tagged("benchmark")`` is the
+:class:`~ipp_bench.config.IPPConfig`. The entry point names a class of this package
+(``ipp_bench.<module>:<Class>``, :data:`SUITE_ENTRY_POINTS`); nothing else is ever imported, and
+the class only when an env is made, after the whole file was checked. Registration is idempotent; ``tagged("benchmark")`` is the
 set the leaderboard runs (dm_control's habit of deriving benchmark sets from tags).
 """
 
@@ -120,9 +122,9 @@ def load_task_file(path, builtin: bool = False) -> TaskSpec:
         raise TaskFileError(path, f"id = {task_id!r} is invalid: expected a string '{NAMESPACE}/<Name>-v<N>', "
                                   f"e.g. '{NAMESPACE}/MyGrid-v0'", _line_of(text, "id"))
     entry = data["entry_point"]
-    if not isinstance(entry, str) or entry.count(":") != 1:
-        raise TaskFileError(path, f"entry_point = {entry!r} is invalid: expected 'module:Class', e.g. "
-                                  "'ipp_bench.envs.graph:GraphIPPEnv'", _line_of(text, "entry_point"))
+    problem = entry_point_problem(entry)
+    if problem is not None:
+        raise TaskFileError(path, problem, _line_of(text, "entry_point"))
     tags = data.get("tags", [])
     if not isinstance(tags, list) or not all(isinstance(t, str) for t in tags):
         raise TaskFileError(path, f"tags = {tags!r} is invalid: expected a list of strings",
@@ -145,6 +147,22 @@ def load_task_file(path, builtin: bool = False) -> TaskSpec:
         line = _line_of(text, m.group(m.lastindex)) if m else None
         raise TaskFileError(path, str(err), line) from None
     return TaskSpec(task_id, entry, tuple(tags), description.strip(), config, str(path), builtin, dict(sim))
+
+
+#: the environment classes of the suite, named where an entry point is refused
+SUITE_ENTRY_POINTS = ("ipp_bench.envs.graph:GraphIPPEnv", "ipp_bench.envs.twin:TwinIPPEnv",
+                      "ipp_bench.sim.env:MuJoCoIPPEnv")
+_ENTRY_POINT = re.compile(r"^ipp_bench(\.[A-Za-z_][A-Za-z0-9_]*)+:[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def entry_point_problem(entry: Any) -> str | None:
+    """Why ``entry`` cannot be a task's entry point, or None. Only a class of this package
+    (``ipp_bench.<module>:<Class>``) is allowed: a task file is data, and importing a module it
+    names runs that module's code (any installed module, before anything else is checked)."""
+    if isinstance(entry, str) and _ENTRY_POINT.match(entry):
+        return None
+    return (f"entry_point = {quoted(entry)} is invalid: expected a class of this package, "
+            f"'ipp_bench.<module>:<Class>', one of {list(SUITE_ENTRY_POINTS)} (a task file imports nothing else)")
 
 
 #: [bytes] the largest task file read (the suite's are about 2 KB)
@@ -257,6 +275,9 @@ def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
     itself, gymnasium would wrap an ``rgb_array`` env asked for ``"human"`` in its HumanRendering
     window, which asks for pygame instead.)
     """
+    problem = entry_point_problem(env_class)
+    if problem is not None:  # never import what a task file names unless it is the suite's
+        raise ValueError(problem)
     try:
         cls = load_env_creator(env_class)
     except ImportError as err:

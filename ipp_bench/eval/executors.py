@@ -14,6 +14,12 @@ episode's numbers are the same whichever backend or worker count runs it.
 - ``ray``: one Ray task per job (``num_cpus=1``) on the cluster at ``address`` /
   ``RAY_ADDRESS``, on an already initialised Ray, or on a local Ray started here. Needs
   ``pip install "ipp-bench[ray]"``; on a remote cluster ipp-bench must be installed there too.
+  A local Ray started here ends with the run, even a killed one (a small watchdog process ends
+  its agents, which would otherwise wait a minute for the dead GCS); a cluster reached by
+  address is never touched.
+
+Ctrl-C and SIGTERM wait while jobs are being submitted (a worker being forked when the signal
+lands would be left behind, half started), and take effect right after.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -149,11 +156,18 @@ class ProcessExecutor:
         self._pool: ProcessPoolExecutor | None = None
 
     def imap_unordered(self, fn: Callable[[J], R], jobs: Sequence[J]) -> Iterator[tuple[J, R]]:
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.workers,
-                                             mp_context=multiprocessing.get_context(self.start_method),
-                                             initializer=init_worker, initargs=(os.getpid(),))
-        pending = {self._pool.submit(fn, job): job for job in jobs}
+        pending: dict = {}
+        # Ctrl-C or SIGTERM while the pool forks its workers would land between a worker's start
+        # and the pool recording it: that worker, never stopped, then reads its start-up data
+        # after the pool removed its queues, and prints a traceback. The signal waits until
+        # every job is submitted (and every worker recorded); it is raised right after.
+        with _signals_deferred():
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(max_workers=self.workers,
+                                                 mp_context=multiprocessing.get_context(self.start_method),
+                                                 initializer=init_worker, initargs=(os.getpid(),))
+            for job in jobs:
+                pending[self._pool.submit(fn, job)] = job
         try:
             while pending:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
@@ -182,6 +196,34 @@ class ProcessExecutor:
 
     def describe(self) -> str:
         return f"process pool, {self.workers} workers ({self.start_method})"
+
+
+class _signals_deferred:
+    """Hold SIGINT and SIGTERM while the block runs (in the main thread; elsewhere a no-op): a signal
+    that arrives meanwhile is handled, by the handler that was set, when the block ends."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __enter__(self):
+        self._held: list[tuple[int, object]] = []
+        self._saved = {}
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        for sig in self.SIGNALS:
+            self._saved[sig] = signal.signal(sig, lambda signum, frame: self._held.append((signum, frame)))
+        return self
+
+    def __exit__(self, *exc):
+        for sig, handler in self._saved.items():
+            signal.signal(sig, handler)
+        if self._held:
+            signum, frame = self._held[0]
+            handler = self._saved[signum]
+            if callable(handler):
+                handler(signum, frame)  # the leaderboard's: KeyboardInterrupt
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), signum)
+        return False
 
 
 def _import_ray():
@@ -274,6 +316,7 @@ class RayExecutor:
         self.address = address or os.environ.get("RAY_ADDRESS") or None
         self._owns = False
         self._local = False  # a local Ray started here (its processes are ours to clean up)
+        self._watchdog: subprocess.Popen | None = None  # ends that Ray's processes if this process is killed
         self._subreaper = False
         # ray.init installs a C++ handler that dumps a stack and kills the process on SIGTERM; the
         # caller's handler (the leaderboard: stop like Ctrl-C, keep the episodes) is put back after it
@@ -299,6 +342,7 @@ class RayExecutor:
             ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
             self._owns = True
             self._local = True
+            self._watchdog = _start_ray_watchdog()
             self.where = f"a local Ray with {workers} CPUs"
         if callable(handler):
             signal.signal(signal.SIGTERM, handler)
@@ -313,7 +357,10 @@ class RayExecutor:
         # failed ... Tried to complete task that was not pending", a C++ abort of this process with a
         # stack dump, exit 1, its Ray agents left running). Only in a Ray the caller initialised (which
         # stays up) are they cancelled, gently: pending ones dropped, running ones interrupted.
-        refs = {self._remote.remote(fn, job): job for job in jobs}
+        refs = {}
+        with _signals_deferred():  # every task submitted, or none: no half-made submission to clean up
+            for job in jobs:
+                refs[self._remote.remote(fn, job)] = job
         try:
             while refs:
                 done, _ = ray.wait(list(refs), num_returns=1)
@@ -343,6 +390,10 @@ class RayExecutor:
             if helpers:
                 _reap(helpers)
                 _wait_zombies([pid for pid, _ in helpers])
+        if self._watchdog is not None:
+            self._watchdog.kill()
+            self._watchdog.wait()
+            self._watchdog = None
         if self._subreaper:
             _set_child_subreaper(False)
             self._subreaper = False
@@ -350,6 +401,80 @@ class RayExecutor:
 
     def describe(self) -> str:
         return f"Ray tasks on {self.where}"
+
+
+#: The watchdog of a local Ray (a separate small Python, no imports beyond os, sys, time, signal).
+#: Ray makes its raylet and GCS die with the process that started them, but its dashboard and
+#: runtime-env agents only notice the raylet's death, then try to tell the (dead) GCS and wait for
+#: its timeout: alive for a minute after a SIGKILL of the run. The watchdog notes every Ray process
+#: below the run twice a second; when the run is gone, it SIGKILLs those still alive (a pid whose
+#: start time changed is another process and is left alone), then exits. :meth:`RayExecutor.close`
+#: stops it after its own clean shutdown.
+_WATCHDOG = r"""
+import os, signal, sys, time
+
+owner, owner_start, period = int(sys.argv[1]), sys.argv[2], float(sys.argv[3])
+me = os.getpid()
+
+
+def stat(pid):
+    try:
+        with open("/proc/%s/stat" % pid) as fh:
+            text = fh.read()
+    except OSError:
+        return None
+    return text[text.rindex(")") + 2:].split()
+
+
+def same(pid, start):
+    f = stat(pid)
+    return f is not None and f[0] != "Z" and f[19] == start
+
+
+def is_rays(pid):
+    try:
+        with open("/proc/%s/cmdline" % pid, "rb") as fh:
+            cmd = fh.read().replace(bytes(1), b" ")
+    except OSError:
+        return False
+    return cmd.startswith(b"ray" + b"::") or (b"/" + b"ray/") in cmd
+
+
+seen = {}
+while same(owner, owner_start):
+    parents = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            f = stat(entry)
+            if f is not None and f[0] != "Z":
+                parents[int(entry)] = (int(f[1]), f[19])
+    frontier = [owner]
+    while frontier:
+        parent = frontier.pop()
+        for child, (ppid, start) in parents.items():
+            if ppid == parent:
+                frontier.append(child)
+                if child != me and child not in seen and is_rays(child):
+                    seen[child] = start
+    time.sleep(period)
+for pid, start in seen.items():
+    if same(pid, start):
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+"""
+WATCHDOG_PERIOD_S = 0.5  # [s] how often the watchdog of a local Ray looks at the run and its Ray processes
+
+
+def _start_ray_watchdog() -> subprocess.Popen | None:
+    """Start :data:`_WATCHDOG` for this process (Linux: it reads /proc; elsewhere None)."""
+    fields = _stat_fields(os.getpid())
+    if fields is None:
+        return None
+    return subprocess.Popen([sys.executable, "-I", "-c", _WATCHDOG, str(os.getpid()), fields[19],
+                             str(WATCHDOG_PERIOD_S)], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, close_fds=True)
 
 
 def _stat_fields(pid: int | str) -> list[str] | None:

@@ -8,7 +8,8 @@ not hold yet and then writes the report (``leaderboard.md`` and PNG plots, see
 module runs them; import the names of the other three from them.
 
 An interrupted run (Ctrl-C, SIGTERM) keeps every finished episode; rerunning the same command
-resumes it. Workers of the process pool exit when the run's process dies.
+resumes it. Workers of the process pool, and a local Ray the run started, end when the run's
+process dies.
 """
 
 from __future__ import annotations
@@ -23,10 +24,10 @@ from typing import Any
 
 from ..data import OutputWriteError
 from ..envs import load_task, short_task_id
+from .aggregate import POWER_HALF_WIDTH
 from .executors import JobError, JobFailed, default_backend, make_executor
 from .plan import EpisodeJob, Plan, report_times
-from .aggregate import POWER_HALF_WIDTH
-from .results import ResultsStore, copy_published
+from .results import ResultsStore, copy_published, describe_machine
 from .runner import run_episode
 
 
@@ -194,7 +195,10 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
             aborted = True
             try:
                 for job, rows in executor.imap_unordered(run_job, todo):
-                    store.append(rows)
+                    try:
+                        store.append(rows)
+                    except ValueError as err:  # a value that is not a finite number: never written
+                        raise JobFailed(job, str(err)) from None
                     bar.update(job, rows)
                 aborted = False
             except KeyboardInterrupt:
@@ -219,7 +223,8 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
             files += write_report(store.csv_path, out_dir, tasks=plan.tasks, planners=plan.planners,
                                   command=command, quick=store.quick, reference=reference, log=log,
                                   published_csv=published,
-                                  published_from=plan.against["folder"] if plan.against else None, power=power)
+                                  published_from=plan.against["folder"] if plan.against else None, power=power,
+                                  made_on=[describe_machine(m) for m in store.machines])
     wall = time.perf_counter() - t0
     return Summary(Path(out_dir), len(jobs), skipped, len(todo), wall, files)
 

@@ -140,6 +140,7 @@ def _milliseconds(x: float) -> str:
 
 
 def _best(means: dict[str, float], fmt, lowest: bool) -> set[str]:
+    means = {p: m for p, m in means.items() if math.isfinite(m)}  # a mean that is not a number is never best
     if not means:
         return set()
     target = min(means.values()) if lowest else max(means.values())
@@ -153,8 +154,8 @@ def _cell(stat: tuple[float, float | None, float | None] | None, fmt, unit: str,
     head = f"{fmt(mean)}{unit}"
     if bold:
         head = f"**{head}**"
-    if low is None:
-        return f"{head} ({NO_INTERVAL})"
+    if low is None:  # one episode: the report says once that such cells have no interval
+        return head
     return f"{head} [{fmt(low)}, {fmt(high)}]"
 
 
@@ -188,8 +189,8 @@ def _paired_cell(agg: Aggregate, task: str, planner: str, other: str, t: float, 
     d = np.array([mine[s] - theirs[s] for s in seeds])
     mean, low, high = bootstrap_ci(d)
     won = int(np.sum(d > 0))
-    interval = f"({NO_INTERVAL})" if low is None else f"[{low:+.1f}, {high:+.1f}]"
-    return f"{mean:+.1f} {interval}, won {won}/{len(seeds)}"
+    interval = "" if low is None else f" [{low:+.1f}, {high:+.1f}]"
+    return f"{mean:+.1f}{interval}, won {won}/{len(seeds)}"
 
 
 def paired_table(agg: Aggregate, reference: str, key: str = "uncertainty_reduction_pct") -> str:
@@ -365,7 +366,7 @@ def power_section(agg: Aggregate, reference: str, half_width: float = POWER_HALF
         parts.append("| " + " | ".join([
             f"**{short_task(task)}**" if task != last else "", f"{t:g}", str(max(c.episodes for c in cs)),
             f"{sd.sd:.1f} (`{sd.planner}`)" if math.isfinite(sd.sd) else "–",
-            f"{widest.half_width:.1f} (`{widest.planner}`)" if widest else f"– ({NO_INTERVAL})",
+            f"{widest.half_width:.1f} (`{widest.planner}`)" if widest else "–",
             f"{need.needed}"]) + " |")
         last = task
     parts += ["", ("| Environment | Episodes flown | Episodes needed | Set by | Every half-width within "
@@ -438,7 +439,8 @@ def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = Fa
                     plots: Sequence[str] = (), reference: str | None = DEFAULT_REFERENCE,
                     notes: Sequence[str] = (), published_from: str | None = None,
                     power: float | None = POWER_HALF_WIDTH, profile_png: str | None = None,
-                    estimates: tuple[agg_stats.Board, agg_stats.AggregateEstimates | None] | None = None) -> str:
+                    estimates: tuple[agg_stats.Board, agg_stats.AggregateEstimates | None] | None = None,
+                    made_on: Sequence[str] = ()) -> str:
     """The whole leaderboard.md.
 
     Args:
@@ -446,6 +448,7 @@ def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = Fa
         power: the power rule's half-width target in points (None: no power section).
         profile_png: the performance-profile plot's file name, shown beside the aggregate.
         estimates: :func:`aggregate_estimates` of ``agg`` (computed when None).
+        made_on: where the rows were made, one line per machine (run.json's ``machine``).
     """
     counts = sorted({agg.episodes(t, p) for t in agg.tasks for p in agg.planners if agg.episodes(t, p)})
     n_text = (" to ".join(str(c) for c in (counts[0], counts[-1])) if len(counts) > 1
@@ -453,8 +456,15 @@ def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = Fa
     parts = ["# ipp-bench leaderboard", ""]
     if command:
         parts += [f"Made with `{command}`" + (" (quick mode: few episodes, cheaper look-ahead)." if quick else "."), ""]
+    if made_on:
+        parts += [f"Made on {made_on[0]}" + (f"; rows also made on {len(made_on) - 1} other machine"
+                                             f"{'s' if len(made_on) > 2 else ''} (run.json)." if len(made_on) > 1
+                                             else "."), ""]
     if quick:
         parts += [QUICK_NOTE.format(n=n_text), ""]
+    if counts and counts[0] == 1:
+        parts += [(f"Every cell shows the mean alone ({NO_INTERVAL} per task and planner)." if len(counts) == 1
+                   else f"A cell of one episode shows the mean alone ({NO_INTERVAL})."), ""]
     if agg.published:
         new = [p for p in agg.planners if p not in agg.published]
         parts += [
@@ -636,7 +646,8 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
                  planners: Sequence[str] | None = None, command: str | None = None,
                  quick: bool = False, reference: str | None = DEFAULT_REFERENCE,
                  log: Callable[[str], None] | None = None, published_csv: str | Path | None = None,
-                 published_from: str | None = None, power: float | None = POWER_HALF_WIDTH) -> list[Path]:
+                 published_from: str | None = None, power: float | None = POWER_HALF_WIDTH,
+                 made_on: Sequence[str] = ()) -> list[Path]:
     """Write ``leaderboard.md``, ``performance_profile.png``, ``curves_<task>.png`` and
     ``runtime_per_decision.png`` from a results.csv.
 
@@ -647,6 +658,7 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
             (published), before this run's planners (``--against``).
         published_from: the published board's folder, as the report names it.
         power: the power rule's half-width target in points (None: no power section).
+        made_on: where the rows were made (one line per machine), said in one line at the top.
 
     Returns:
         The paths written.
@@ -684,7 +696,7 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
             log(f"note: {note}")
     md = out_dir / "leaderboard.md"
     text = markdown_report(agg, command, quick, [p.name for p in written if p.name != PROFILE_PNG], reference,
-                           notes, published_from, power, profile_png, estimates)
+                           notes, published_from, power, profile_png, estimates, made_on)
     write_atomically(md, lambda tmp: tmp.write_text(text))
     return [md, *written]
 

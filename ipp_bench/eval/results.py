@@ -8,11 +8,22 @@ The folder holds:
     seed, environment overrides; :meth:`Plan.fingerprint`). A rerun with other arguments is
     refused, naming what differs; a rerun with more episodes extends the folder (seeds are
     prefix-stable). The executor (backend, workers) is not part of it: results do not depend on it.
+    Beside it, not part of it: ``machine`` (:func:`machine_info`: CPU model and the flags that change
+    floating-point results, cores, Python, numpy, scipy, torch, mujoco, dm-control; rows appended
+    elsewhere add ``other_machines``), and ``rows``: a 32-bit digest of every results.csv row
+    (:func:`row_digest`), rewritten after each episode's append.
 ``results.csv``
     long format, one row per (task, planner, seed, report time) with :data:`COLUMNS`. An episode's
     rows are appended in one write, flushed and fsync'ed as soon as it finishes, so a killed run
     loses no finished episode. On resume a torn last line (the write a kill interrupted) and
-    episodes with missing rows are dropped and run again. When every episode is in, the file is
+    episodes with missing rows (a row deleted by hand) are dropped and run again. Any other bad
+    row refuses the resume in one line naming the file, the line and what is wrong, and nothing is
+    written: a row that does not parse, a value that is not a finite number, a task, planner, seed
+    or report time that is not this run's, a repeated row, or a row whose digest run.json does not
+    record (edited by hand; only the rows of the one append a kill cut off from run.json's update
+    may lack one). The checks are what a reader can verify of every row; the digests catch what
+    still parses (a number changed by hand), and a folder from before the digests gets the checks
+    alone. Non-finite values are never written. When every episode is in, the file is
     rewritten sorted (task, planner, seed, time), so its content does not depend on the order in
     which workers finished.
 ``published_results.csv``
@@ -30,7 +41,9 @@ import csv
 import hashlib
 import io
 import json
+import math
 import os
+import platform
 import shutil
 import time
 from collections.abc import Iterable, Sequence
@@ -61,6 +74,66 @@ class ResultsMismatchError(ValueError):
     """``out_dir`` holds results made with other arguments, or cannot be used."""
 
 
+#: hex digits of each row's digest in run.json (``rows.digests``): 32 bits, so a row edited by hand
+#: passes for another row of a 10 000-row board with a chance of about 2 in a million
+ROW_DIGEST_HEX = 8
+
+
+def row_digest(line: str) -> str:
+    """The digest run.json records of one results.csv line (without its newline)."""
+    return hashlib.blake2b(line.encode(), digest_size=ROW_DIGEST_HEX // 2).hexdigest()
+
+
+#: the CPU flags that change floating-point results (which BLAS kernels run, fused multiply-adds)
+FLOAT_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f")
+#: the packages whose versions decide the numbers, recorded where installed
+RECORDED_PACKAGES = ("numpy", "scipy", "torch", "mujoco", "dm-control")
+
+
+def machine_info() -> dict[str, Any]:
+    """Where rows are made: CPU model, the flags of :data:`FLOAT_FLAGS` it has, cores, OS, Python
+    and the versions of :data:`RECORDED_PACKAGES` that are installed (none is imported)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    cpu, flags = platform.processor() or platform.machine(), set()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name" and cpu in ("", platform.processor() or platform.machine()):
+                    cpu = value.strip()
+                elif key.strip() in ("flags", "Features") and not flags:
+                    flags = set(value.split())
+    except OSError:  # no /proc (not Linux): the model from platform, no flags
+        pass
+    packages = {}
+    for name in RECORDED_PACKAGES:
+        try:
+            packages[name] = version(name)
+        except PackageNotFoundError:
+            continue
+    return {"cpu": cpu, "cpu_flags": [f for f in FLOAT_FLAGS if f in flags], "cores": os.cpu_count(),
+            "os": f"{platform.system()} {platform.machine()}", "python": platform.python_version(),
+            "packages": packages}
+
+
+def describe_machine(info: dict[str, Any]) -> str:
+    """One line of :func:`machine_info`: ``CPU (N cores; avx2, fma), OS; Python X, numpy Y, ...``."""
+    flags = ", ".join(info.get("cpu_flags") or []) or "no vector flags known"
+    packages = ", ".join(f"{k} {v}" for k, v in (info.get("packages") or {}).items())
+    return (f"{info.get('cpu', '?')} ({info.get('cores', '?')} cores; {flags}), {info.get('os', '?')}; "
+            f"Python {info.get('python', '?')}" + (f", {packages}" if packages else ""))
+
+
+def _finite_problem(row: dict[str, Any]) -> str | None:
+    """The first value of a results row that is not a finite number, said as ``column = value ...``."""
+    for c in _FLOAT_COLUMNS:
+        value = row[c]
+        if not (isinstance(value, (int, float)) and math.isfinite(value)):
+            return f"{c} = {value!r} is not a finite number"
+    return None
+
+
 def _format_cell(value: Any) -> str:
     if isinstance(value, float):
         return repr(value)  # shortest round-trip form: the same number reads back bit for bit
@@ -80,23 +153,39 @@ def format_rows(rows: Iterable[dict[str, Any]]) -> str:
 
 
 def _parse_row(fields: list[str]) -> dict[str, Any]:
+    """One row typed; a ValueError says which field is wrong (``seed = '1.5' is not an integer``)."""
     if len(fields) != len(COLUMNS):
-        raise ValueError(f"{len(fields)} fields, expected {len(COLUMNS)}")
+        raise ValueError(f"{len(fields)} fields, expected {len(COLUMNS)} ({','.join(COLUMNS)})")
     row: dict[str, Any] = dict(zip(COLUMNS, fields))
     for c in _INT_COLUMNS:
-        row[c] = int(row[c])
+        try:
+            row[c] = int(row[c])
+        except ValueError:
+            raise ValueError(f"{c} = {row[c]!r} is not an integer") from None
     for c in _FLOAT_COLUMNS:
-        row[c] = float(row[c])
+        try:
+            row[c] = float(row[c])
+        except ValueError:
+            raise ValueError(f"{c} = {row[c]!r} is not a number") from None
     return row
 
 
 def read_results(path: str | Path) -> list[dict[str, Any]]:
-    """The rows of a results.csv (typed); a torn last line is ignored."""
-    return _parse_text(Path(path).read_text())[0]
+    """The rows of a results.csv (typed); a torn last line (a killed append) is ignored.
+
+    Raises:
+        ValueError: ``FILE:LINE: what is wrong`` for the first row that does not parse or holds a
+            value that is not a finite number (a bad row is never skipped silently).
+    """
+    return _parse_text(Path(path).read_text(), Path(path))[0]
 
 
-def _parse_text(text: str) -> tuple[list[dict[str, Any]], list[str]]:
-    """Rows of a results.csv text, and notes on what was dropped (torn or malformed lines)."""
+def _parse_text(text: str, path: Path | str = RESULTS_CSV) -> tuple[list[dict[str, Any]], list[str]]:
+    """Rows of a results.csv text, and notes on what was dropped (a torn last line).
+
+    Raises:
+        ValueError: another header, or ``FILE:LINE: what`` for a row that does not parse or is not finite.
+    """
     notes = []
     if text and not text.endswith("\n"):
         cut = text.rfind("\n") + 1
@@ -107,13 +196,17 @@ def _parse_text(text: str) -> tuple[list[dict[str, Any]], list[str]]:
         return [], notes
     header = next(csv.reader([lines[0]]))
     if tuple(header) != COLUMNS:
-        raise ValueError(f"results.csv has columns {header}, expected {list(COLUMNS)}")
+        raise ValueError(f"{path}:1: the columns are {header}, expected {list(COLUMNS)}")
     rows = []
     for i, fields in enumerate(csv.reader(lines[1:]), start=2):
         try:
-            rows.append(_parse_row(fields))
+            row = _parse_row(fields)
         except ValueError as err:
-            notes.append(f"dropped malformed line {i} ({err})")
+            raise ValueError(f"{path}:{i}: {err}") from None
+        problem = _finite_problem(row)
+        if problem:
+            raise ValueError(f"{path}:{i}: {problem}")
+        rows.append(row)
     return rows, notes
 
 
@@ -149,6 +242,8 @@ class ResultsStore:
         self._rewrite_rows: list[dict[str, Any]] | None = None  # results.csv to write at begin()
         self.notes: list[str] = []
         self.done: dict[tuple[str, str, int], list[dict[str, Any]]] = {}
+        self._stored_meta: dict[str, Any] | None = None  # run.json as read
+        self._digests: list[str] = []  # row_digest of every data line of results.csv, in file order
 
     # -- setup ----------------------------------------------------------------------------------------
     def __enter__(self) -> ResultsStore:
@@ -156,6 +251,10 @@ class ResultsStore:
             check_output_dir(self.dir)
         except ValueError as err:
             raise ResultsMismatchError(str(err)) from None
+        if self.dir.is_symlink() and not self.dir.exists():
+            raise ResultsMismatchError(
+                f"--out {self.dir} is a symbolic link to {os.readlink(self.dir)}, which does not exist: create "
+                "that folder, remove the link, or pass another --out DIR")
         try:  # atomic: of two runs starting at once on a new folder, exactly one created it
             self.dir.mkdir(parents=True)
             self._created = True
@@ -163,6 +262,7 @@ class ResultsStore:
             self._created = False
         try:
             self._lock()
+            self._check_files()
             self._check_fingerprint()
             self._load()
         except BaseException:
@@ -201,8 +301,16 @@ class ResultsStore:
         except OSError:
             os.close(fd)
             raise ResultsMismatchError(
-                f"{self.dir} is in use by another leaderboard run (locked); wait for it or pass another --out") from None
+                f"{self.dir} is in use by another leaderboard run (locked); wait for it or pass another --out"
+            ) from None
         self._lock_fd = fd
+
+    def _check_files(self) -> None:
+        """Refuse a folder (or anything but a regular file) where the folder's files belong."""
+        for path in (self.run_json, self.csv_path, self.dir / PUBLISHED_CSV):
+            if path.exists() and not path.is_file():
+                kind = "a folder" if path.is_dir() else "not a regular file"
+                raise ResultsMismatchError(f"{path} is {kind}, not a file: move it away, or pass a new --out DIR")
 
     def _new_meta(self, created: str | None = None) -> dict[str, Any]:
         meta = {
@@ -216,6 +324,7 @@ class ResultsStore:
             "ipp_bench_version": __version__,
             "command": self.command,
             "created": created or time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "machine": machine_info(),
         }
         if self.plan.against is not None:
             meta["against"] = dict(self.plan.against)
@@ -233,10 +342,15 @@ class ResultsStore:
         try:
             stored_meta = json.loads(self.run_json.read_text())
             stored = dict(stored_meta["fingerprint"])
+        except OSError as err:
+            raise ResultsMismatchError(f"{self.run_json} cannot be read ({err.strerror or err}); pass a new --out "
+                                       f"DIR (or delete {self.dir})") from None
         except (ValueError, KeyError, TypeError) as err:
             raise ResultsMismatchError(
                 f"{self.run_json} is unreadable ({err}); pass a new --out DIR (or delete {self.dir})") from None
-        stored_episodes = stored.pop("episodes", None) or stored_meta.get("episodes") or len(stored_meta.get("seeds", []))
+        self._stored_meta = stored_meta
+        stored_episodes = (stored.pop("episodes", None) or stored_meta.get("episodes")
+                           or len(stored_meta.get("seeds", [])))
         added = [k for k in ADDED_FINGERPRINT_KEYS if k not in stored]
         if "planner_fingerprints" in added:
             self._refuse_unfingerprinted_rows(fingerprint.get("planner_fingerprints") or {})
@@ -275,6 +389,9 @@ class ResultsStore:
                 self.notes.append(f"extending {self.dir} from {stored_episodes} to {self.plan.episodes} episodes "
                                   "per task and planner (the first seeds are the same)")
             meta = self._new_meta(stored_meta.get("created"))
+            meta["machine"] = stored_meta.get("machine")  # where the kept rows were made (None: not recorded)
+            if "other_machines" in stored_meta:
+                meta["other_machines"] = stored_meta["other_machines"]
             meta["quick"] = bool(stored_meta.get("quick", self.plan.quick))  # the label stays the folder's
             meta["command"] = self.command or stored_meta.get("command")
             self._meta = meta
@@ -298,17 +415,18 @@ class ResultsStore:
         if not self.csv_path.exists() or self.csv_path.stat().st_size == 0:
             self._rewrite_rows = []
             return
-        text = self.csv_path.read_text()
         try:
-            rows, notes = _parse_text(text)
-        except ValueError as err:  # another header: not a results file of this version
-            raise ResultsMismatchError(f"{self.csv_path}: {err}; pass a new --out DIR (or delete {self.dir})") from None
+            text = self.csv_path.read_text()
+        except (OSError, UnicodeDecodeError) as err:
+            raise ResultsMismatchError(f"{self.csv_path} cannot be read ({getattr(err, 'strerror', None) or err}); "
+                                       f"pass a new --out DIR (or delete {self.dir})") from None
         expected = {t: report_times(t, self.plan.env_overrides) for t in self.plan.tasks}
+        rows, notes, self._digests = self._checked_rows(text, expected)
         wanted = {job.key for job in self.plan.jobs()}
         groups: dict[tuple[str, str, int], dict[float, dict[str, Any]]] = {}
         for row in rows:
             key = (row["task"], row["planner"], row["seed"])
-            groups.setdefault(key, {}).setdefault(row["time_s"], row)  # a duplicate row: keep the first
+            groups.setdefault(key, {})[row["time_s"]] = row
         done = {}
         dropped: dict[str, int] = {}
         for key, by_time in groups.items():
@@ -330,19 +448,116 @@ class ResultsStore:
         self.notes.extend(notes)
         self.done = done
 
+    def _checked_rows(self, text: str, expected: dict[str, tuple[float, ...]]
+                      ) -> tuple[list[dict[str, Any]], list[str], list[str]]:
+        """The rows of results.csv ``text``, notes, and the digest of each line; every row must parse,
+        be finite, be an episode and report time of this run, appear once, and (where run.json records
+        digests) be a row this run wrote. A torn last line (a killed append) is the one thing dropped.
+
+        Raises:
+            ResultsMismatchError: ``FILE:LINE: what is wrong``, the first bad row; nothing is changed.
+        """
+        notes = []
+        if text and not text.endswith("\n"):
+            cut = text.rfind("\n") + 1
+            notes.append(f"dropped a torn last line ({len(text) - cut} bytes, from an interrupted write)")
+            text = text[:cut]
+        lines = text.splitlines()
+        if not lines:
+            return [], notes, []
+        header = next(csv.reader([lines[0]]))
+        if tuple(header) != COLUMNS:
+            raise ResultsMismatchError(f"{self.csv_path}:1: the columns are {header}, expected {list(COLUMNS)}; "
+                                       f"not a results file of this version: pass a new --out DIR")
+        recorded = (self._stored_meta or {}).get("rows")
+        known, count = None, 0
+        if isinstance(recorded, dict) and isinstance(recorded.get("digests"), str):
+            d = recorded["digests"]
+            known = {d[i:i + ROW_DIGEST_HEX] for i in range(0, len(d), ROW_DIGEST_HEX)}
+            count = int(recorded.get("count", len(d) // ROW_DIGEST_HEX))
+        seeds, planners = set(self.plan.seeds), set(self.plan.planners)
+        rows, digests, seen = [], [], {}
+        tail_key = None
+        for number, (line, fields) in enumerate(zip(lines[1:], csv.reader(lines[1:])), start=2):
+            def bad(what: str, number: int = number) -> ResultsMismatchError:
+                return ResultsMismatchError(
+                    f"{self.csv_path}:{number}: {what}; restore the line, or delete it to fly its episode again "
+                    "(the other rows are kept), or pass a new --out DIR")
+
+            try:
+                row = _parse_row(fields)
+            except ValueError as err:
+                raise bad(str(err)) from None
+            problem = _finite_problem(row)
+            if problem:
+                raise bad(problem)
+            if row["task"] not in expected:
+                raise bad(f"task {row['task']!r} is not a task of this run ({', '.join(expected)})")
+            if row["planner"] not in planners:
+                raise bad(f"planner {row['planner']!r} is not a planner of this run ({', '.join(self.plan.planners)})")
+            if row["seed"] not in seeds:
+                raise bad(f"seed {row['seed']} is not an episode seed of this run")
+            if row["time_s"] not in expected[row["task"]]:
+                raise bad(f"time_s = {row['time_s']!r} is not a report time of {row['task']} "
+                          f"({', '.join(f'{t:g}' for t in expected[row['task']])})")
+            key = (row["task"], row["planner"], row["seed"], row["time_s"])
+            if key in seen:
+                raise bad(f"repeats line {seen[key]} ({row['task']} {row['planner']} seed {row['seed']} at "
+                          f"{row['time_s']:g} s)")
+            seen[key] = number
+            digest = row_digest(line)
+            if known is not None and digest not in known:
+                # rows past the recorded count are those of the append a kill cut off from run.json's
+                # update: one episode at most
+                episode = key[:3]
+                if number - 2 < count or (tail_key is not None and tail_key != episode):
+                    raise bad(f"not a row this run wrote (its digest is not among those {RUN_JSON} records: "
+                              "edited by hand?)")
+                tail_key = episode
+            rows.append(row)
+            digests.append(digest)
+        return rows, notes, digests
+
+    def _write_meta(self, meta: dict[str, Any]) -> None:
+        meta["rows"] = {"count": len(self._digests), "digests": "".join(self._digests)}
+        _atomic_write(self.run_json, json.dumps(meta, indent=2) + "\n")
+        self._stored_meta = meta
+
     # -- writing --------------------------------------------------------------------------------------
     def begin(self) -> None:
         """Write what opening decided: run.json (new, extended or upgraded) and a clean results.csv."""
-        if self._meta is not None:
-            _atomic_write(self.run_json, json.dumps(self._meta, indent=2) + "\n")
-            self._meta = None
-        if self._rewrite_rows is not None:
-            _atomic_write(self.csv_path, format_header() + format_rows(self._rewrite_rows))
-            self._rewrite_rows = None
+        # A new folder's run.json comes first (results.csv without it is refused); an existing folder's
+        # results.csv first: digests run.json still records of rows since dropped are harmless, rows
+        # it does not record are not.
+        meta, rewrite = self._meta, self._rewrite_rows
+        self._meta = self._rewrite_rows = None
+        if rewrite is not None:
+            body = format_rows(rewrite)
+            self._digests = [row_digest(line) for line in body.splitlines()]
+        if meta is not None and self._stored_meta is None:
+            self._write_meta(meta)
+            meta = None
+        if rewrite is not None:
+            _atomic_write(self.csv_path, format_header() + body)
+        if meta is not None or (rewrite is not None and self._stored_meta is not None and
+                                self._stored_meta.get("rows", {}).get("digests") != "".join(self._digests)):
+            self._write_meta(meta if meta is not None else dict(self._stored_meta))
 
     def append(self, rows: list[dict[str, Any]]) -> None:
-        """Append one episode's rows: one write of whole lines, flushed and fsync'ed."""
-        data = format_rows(rows).encode()
+        """Append one episode's rows: one write of whole lines, flushed and fsync'ed; then run.json
+        records their digests.
+
+        Raises:
+            ValueError: a row with a value that is not a finite number (nothing is written).
+            OutputWriteError: the file could not be written.
+        """
+        for row in rows:
+            problem = _finite_problem(row)
+            if problem:
+                raise ValueError(f"{row['task']} {row['planner']} seed {row['seed']} at {row['time_s']} s: "
+                                 f"{problem}; the episode's rows are not written")
+        text = format_rows(rows)
+        data = text.encode()
         try:
             fd = os.open(self.csv_path, os.O_WRONLY | os.O_APPEND)
             try:
@@ -357,11 +572,28 @@ class ResultsStore:
             raise OutputWriteError(f"cannot write {self.csv_path}: {err.strerror or err}") from None
         key = (rows[0]["task"], rows[0]["planner"], rows[0]["seed"])
         self.done[key] = rows
+        self._digests += [row_digest(line) for line in text.splitlines()]
+        meta = dict(self._stored_meta or self._new_meta())
+        here = machine_info()
+        if meta.get("machine") != here and here not in meta.get("other_machines", []):
+            meta["other_machines"] = [*meta.get("other_machines", []), here]
+        self._write_meta(meta)
 
     def finalize(self) -> None:
         """Rewrite results.csv sorted by (task, planner, seed, time): independent of finishing order."""
         rows = sorted((r for v in self.done.values() for r in v), key=_sort_key(self.plan))
-        _atomic_write(self.csv_path, format_header() + format_rows(rows))
+        body = format_rows(rows)
+        digests = [row_digest(line) for line in body.splitlines()]
+        _atomic_write(self.csv_path, format_header() + body)  # the same rows: run.json's digests still hold
+        if digests != self._digests:
+            self._digests = digests
+            self._write_meta(dict(self._stored_meta or self._new_meta()))
+
+    @property
+    def machines(self) -> list[dict[str, Any]]:
+        """Where the rows were made (run.json's ``machine`` and ``other_machines``): [] when not recorded."""
+        meta = self._stored_meta or {}
+        return [m for m in [meta.get("machine"), *meta.get("other_machines", [])] if isinstance(m, dict)]
 
     @property
     def quick(self) -> bool:
@@ -410,4 +642,5 @@ def _atomic_write(path: Path, text: str) -> None:
 
 
 __all__ = ["COLUMNS", "PUBLISHED_CSV", "RESULTS_CSV", "RUN_JSON", "TIMING_COLUMNS", "ResultsMismatchError",
+           "describe_machine", "machine_info", "row_digest",
            "ResultsStore", "copy_published", "format_header", "format_rows", "read_results"]

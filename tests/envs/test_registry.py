@@ -243,3 +243,38 @@ def test_an_outdated_task_is_said_once_in_plain_text_and_never_by_the_workers(tm
         assert len(said) == 1, proc.stderr
         assert f"the current version of the task is ipp_bench/{task}-v1" in said[0]
     assert "\x1b[" not in proc.stderr and "You should consider upgrading" not in proc.stderr
+
+
+@pytest.mark.parametrize("entry", ["this:s", "os:system", "ipp_bench_evil.envs:Env", "ipp_bench.envs.graph:",
+                                   "ipp_bench..graph:GraphIPPEnv"])
+def test_an_entry_point_outside_the_suite_is_refused_before_any_import(entry, tmp_path):
+    """A task file names the class its env is built from; only the suite's own modules (ipp_bench.*)
+    may be imported, and only once the whole file is valid: anything else is one line naming the
+    file, the line and the entry points allowed, and nothing is imported (``this`` prints a poem)."""
+    path = _write(tmp_path, "mine", GOOD.replace("Grid15Eval-v1", "Mine-v0").replace(
+        '"ipp_bench.envs.graph:GraphIPPEnv"', repr(entry).replace("'", '"')))
+    line = path.read_text().splitlines().index(f'entry_point = "{entry}"') + 1
+    code = ("import sys; from ipp_bench.envs.registry import load_task, TaskFileError\n"
+            f"try:\n    load_task({str(path)!r})\nexcept TaskFileError as err:\n    print('ERR', err)\n"
+            "print('imported' if {'this', 'ipp_bench_evil'} & set(sys.modules) else 'not imported')\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    lines = proc.stdout.strip().splitlines()
+    assert lines[-1] == "not imported" and "Beautiful is better" not in proc.stdout, proc.stdout
+    assert len(lines) == 2 and lines[0].startswith(f"ERR {path}:{line}: entry_point = {entry!r}"), proc.stdout
+    assert "ipp_bench.envs.graph:GraphIPPEnv" in lines[0] and "ipp_bench." in lines[0]
+
+
+def test_the_command_line_refuses_a_foreign_entry_point_in_one_line(tmp_path):
+    path = _write(tmp_path, "mine", GOOD.replace("Grid15Eval-v1", "Mine-v0").replace(
+        "ipp_bench.envs.graph:GraphIPPEnv", "this:s"))
+    proc = subprocess.run([sys.executable, "-m", "ipp_bench.cli", "evaluate", "--task", str(path), "--planner",
+                           "random"], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 2 and "Beautiful is better" not in proc.stdout + proc.stderr
+    assert proc.stderr.count("\n") == 1 and "entry_point = 'this:s'" in proc.stderr, proc.stderr
+
+
+def test_an_entry_point_is_checked_where_the_env_is_built_too():
+    """make_task_env imports only the suite's classes, whatever built its kwargs."""
+    with pytest.raises(ValueError, match="entry_point = 'this:s' is invalid"):
+        envs.registry.make_task_env(env_class="this:s")
+    assert "this" not in sys.modules

@@ -33,7 +33,8 @@ def synthetic_rows():
         for i, seed in enumerate((1, 2, 3)):
             for t in (50.0, 100.0):
                 rows.append(dict(task="ipp_bench/Toy-v0", planner=planner, seed=seed, time_s=t,
-                                 trace_roi=100 - base - t / 10, rmse_roi=0.2, uncertainty_reduction_pct=base + t / 10 + i,
+                                 trace_roi=100 - base - t / 10, rmse_roi=0.2,
+                                 uncertainty_reduction_pct=base + t / 10 + i,
                                  rmse_reduction_pct=base / 2 + i, decisions=10, decision_time_mean_s=dt * (1 + i / 10),
                                  decision_time_max_s=2 * dt, episode_wall_s=1.0))
     return rows
@@ -104,7 +105,8 @@ def test_paired_comparison_against_the_reference():
     assert good[:2] == ["**Toy-v0**", "`good`"]
     assert good[2] == "+30.0 [+30.0, +30.0], won 3/3" and good[3] == "+30.0 [+30.0, +30.0], won 3/3"
     one = [r for r in synthetic_rows() if r["seed"] == 1]
-    assert "(no interval: 1 episode), won 1/1" in paired_table(Aggregate(one), "bad")
+    single = paired_table(Aggregate(one), "bad")
+    assert "+30.0, won 1/1" in single and "no interval" not in single  # the report says it once, above
 
 
 def test_one_episode_says_there_is_no_interval(tmp_path):
@@ -112,7 +114,21 @@ def test_one_episode_says_there_is_no_interval(tmp_path):
     csv_path = tmp_path / RESULTS_CSV
     csv_path.write_text(format_header() + format_rows(one))
     md = write_report(csv_path, tmp_path)[0].read_text()
-    assert "(no interval: 1 episode)" in md and "[61.0, 61.0]" not in md
+    assert "[61.0, 61.0]" not in md
+    assert md.count("no interval: 1 episode") == 1, md  # said once, not in every cell
+
+
+def test_a_non_finite_mean_is_never_bold():
+    from ipp_bench.eval.report import markdown_table
+
+    rows = [dict(r) for r in synthetic_rows()]
+    for r in rows:
+        if r["planner"] == "good":
+            r["uncertainty_reduction_pct"] = float("nan")
+    table = markdown_table(Aggregate(rows))
+    assert "**nan" not in table, table
+    bad = next(line for line in table.splitlines() if "`bad`" in line)
+    assert bad.split("|")[3].strip().startswith("**"), bad
 
 
 def test_without_matplotlib_the_report_is_the_markdown_and_says_so(tmp_path, monkeypatch):

@@ -6,7 +6,9 @@ Subcommands::
     ipp-bench fit-prior --task T [--write]              fit the task's GP prior to its field family
     ipp-bench evaluate --task T --planner P --seed S    one episode, its metrics (--render out.png)
     ipp-bench leaderboard [--quick] [--out DIR] ...     every planner on every benchmark task
-    ipp-bench train ...                                 train the attention policy   (extra [train])
+    ipp-bench leaderboard --planners P --against DIR    a new planner paired with a published board
+    ipp-bench power DIR [--half-width 3]                episodes each task needs for a paired interval
+    ipp-bench train ... | --recipe NAME --out DIR       train the attention policy   (extra [train])
     ipp-bench demo ...                                  MuJoCo deployment demo       (extra [sim])
 
 A subcommand's module is imported only when that subcommand runs, so ``ipp-bench leaderboard``
@@ -41,8 +43,9 @@ EXIT_TERMINATED = 143  # 128 + SIGTERM
 
 # subcommand -> (module, add_arguments, run, extra)
 _DELEGATED = {
-    "train": ("ipp_bench.policies.train", "add_train_arguments", "run_train", "train",
-              "train the attention policy (behaviour cloning warm start + MaskablePPO)"),
+    "train": ("ipp_bench.train.run", "add_train_arguments", "run_train", "train",
+              "train the attention policy (DAgger warm start + MaskablePPO), or rebuild a shipped one "
+              "(--recipe attention_v6)"),
     "demo": ("ipp_bench.eval.demo", "add_demo_arguments", "run_demo", "sim",
              "fly a planner in the MuJoCo deployment and render it"),
 }
@@ -100,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="planner specs such as greedy or mcts:simulations=50, separated by spaces or commas "
                          "(default: every registered planner that can be built here; the others are named)")
     lb.add_argument("--episodes", type=int, help="episodes per task and planner (default 20; --quick: 3)")
-    lb.add_argument("--seed", type=int, default=0, help="base seed the episode seeds derive from (default 0)")
+    lb.add_argument("--seed", type=int, default=None, help="base seed the episode seeds derive from (default 0)")
     lb.add_argument("--workers", type=int, help="parallel workers (default: the CPUs available)")
     lb.add_argument("--backend", choices=("serial", "process", "ray"),
                     help="where episodes run (default: process with more than one worker, else serial)")
@@ -117,11 +120,30 @@ def build_parser() -> argparse.ArgumentParser:
     lb.add_argument("--reference", default=None, metavar="SPEC",
                     help="planner the report compares every other one with, episode by episode (default greedy, "
                          "when it runs); it must be one of the run's planners")
+    lb.add_argument("--against", metavar="FOLDER",
+                    help="pair the --planners with a published board (e.g. baselines/v2): fly them on its tasks, "
+                         "task configurations and episode seeds, and write to --out a report with its rows copied "
+                         "in (marked published); FOLDER is only read. A task configuration or seed set that "
+                         "differs is refused, naming what differs")
+    lb.add_argument("--power", type=float, default=None, metavar="POINTS",
+                    help="half-width target of the report's power rule: the episodes each task needs for a paired "
+                         "95%% interval of every planner minus the reference within +-POINTS (default 3)")
     progress = lb.add_mutually_exclusive_group()
     progress.add_argument("--progress", dest="progress", action="store_true", default=None,
                           help="always show a progress bar")
     progress.add_argument("--no-progress", dest="progress", action="store_false",
                           help="plain lines instead of a progress bar (the default off a terminal)")
+
+    pw = sub.add_parser("power", help="episodes each task of a leaderboard folder needs for a given paired interval",
+                        description="The power rule on a finished leaderboard folder: per task and report time, the "
+                                    "sd of every planner's paired difference with the reference, the episodes, the "
+                                    "half-width reached, and the episodes needed for a paired 95 % interval of "
+                                    "half-width at most --half-width points: n = ceil((1.96 sd / h)^2). Reads only.")
+    pw.add_argument("folder", metavar="DIR", help="a leaderboard folder (its results.csv)")
+    pw.add_argument("--half-width", type=float, default=None, metavar="POINTS",
+                    help="the target half-width in points (default 3)")
+    pw.add_argument("--reference", default=None, metavar="SPEC",
+                    help="the planner every other one is paired with (default greedy)")
 
     for name, (_, _, _, extra, text) in _DELEGATED.items():
         sub.add_parser(name, help=f"{text} (needs ipp-bench[{extra}]; see 'ipp-bench {name} --help')",
@@ -161,6 +183,9 @@ def cmd_fit_prior(args: argparse.Namespace) -> int:
             raise ValueError(f"--seed = {seed} is invalid: expected an integer >= 0")
         if args.write and not os.access(spec.source, os.W_OK):
             raise ValueError(f"--write: the task file {spec.source} is not writable")
+        from .limits import check_fit_size
+
+        check_fit_size(spec.config, maps)  # before any map is drawn (128 x 128: 10 GiB)
     except ValueError as err:
         return _error(str(err))
     cfg = spec.config
@@ -173,7 +198,8 @@ def cmd_fit_prior(args: argparse.Namespace) -> int:
     held_task = gp_fit.held_out_lml(cfg, task_gp.length_scale, task_gp.signal_variance, max(task_gp.nugget, 1e-9))
     mean_line = f"  prior_mean      {fit.prior_mean:.4g} (fitted)\n" if args.fit_mean else ""
     print(f"  length_scale    {fit.length_scale:.4g} m\n  signal_variance {fit.signal_variance:.4g}\n"
-          f"  nugget          {fit.nugget:.4g}\n{mean_line}  log marginal likelihood per map: {fit.lml_per_map:.2f} (fit maps), "
+          f"  nugget          {fit.nugget:.4g}\n{mean_line}  log marginal likelihood per map: "
+          f"{fit.lml_per_map:.2f} (fit maps), "
           f"{held:.2f} (held-out maps; the task file's current prior: {held_task:.2f})")
     if fit.length_scale > 100.0 and fit.nugget > fit.signal_variance:
         print("  note: the maps have no spatial structure at this scale (the nugget holds the variance)")
@@ -221,7 +247,7 @@ class _EpisodeProgress:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from .data import check_output_file
+    from .data import OutputWriteError, check_output_file
     from .envs import parse_overrides, resolve_task, task_config, task_spec
     from .eval.plan import canonical_spec
     from .planners import make_planner
@@ -230,13 +256,17 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         task = resolve_task(args.task)
         task_spec(task)  # names the valid tasks
         env = parse_overrides(args.env)
-        task_config(task, env)  # validates the overrides
-        if args.seed < 0:
-            raise ValueError(f"--seed {args.seed} is invalid: expected an integer >= 0")
+        lo, hi = task_config(task, env).mission.episode_seeds  # validates the overrides
+        if not 0 <= args.seed < hi - lo:  # reset(seed=s) plays lo + s mod (hi - lo): a larger one repeats
+            raise ValueError(f"--seed {args.seed} is invalid: expected an integer in [0, {hi - lo - 1}] "
+                             f"(the task's {hi - lo} episode seeds, mission.episode_seeds = [{lo}, {hi}))")
         if args.render:
             from .eval.figure import require_figure
 
-            check_output_file(args.render, "--render", suffix=".png")
+            render = check_output_file(args.render, "--render", suffix=".png")
+            if not render.parent.is_dir():  # the figure is written into an existing folder, never makes one
+                raise ValueError(f"--render {args.render}: the folder {render.parent} does not exist "
+                                 "(create it, or pass a path in an existing folder)")
             require_figure()  # before the episode, not after it
         spec = canonical_spec(args.planner)
         planner = make_planner(spec)  # a planner that cannot be built here fails now, with its message
@@ -252,8 +282,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     try:
         result = run_episode(task, spec, args.seed, env=task_env, render_path=args.render,
                              on_decision=_EpisodeProgress(task_env))
-    except ValueError as err:  # e.g. a budget that pays for no first move
-        return _error(str(err))
+    except OutputWriteError as err:  # --render: a full disk, say (the old file is left as it was)
+        print(f"ipp-bench: error: {err}", file=sys.stderr)
+        return EXIT_FAILED
+    except Exception as err:  # the planner (or the episode) raised part-way: as the leaderboard says it
+        from .envs import short_task_id
+        from .eval.leaderboard import one_line
+
+        print(f"ipp-bench: error: episode {short_task_id(task)} {spec} seed {args.seed} failed: {one_line(err)}",
+              file=sys.stderr)
+        return EXIT_FAILED
     if args.json:  # strict JSON: a metric that is not a number (no ROI, say) is null, never NaN
         print(json.dumps(_finite_or_none(result.to_dict()), indent=2, allow_nan=False))
         return 0
@@ -317,9 +355,61 @@ class _SigtermAsInterrupt:
         raise KeyboardInterrupt
 
 
+def _half_width(value: float | None, flag: str) -> float:
+    """The power rule's target: a finite number of points > 0 (default 3)."""
+    from .eval.aggregate import POWER_HALF_WIDTH
+
+    if value is None:
+        return POWER_HALF_WIDTH
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{flag} {value:g} is invalid: expected a number of points > 0 (e.g. 3)")
+    return float(value)
+
+
+def cmd_power(args: argparse.Namespace) -> int:
+    from .eval.aggregate import needed_per_task, power_rule
+    from .eval.report import DEFAULT_REFERENCE, resolve_reference, short_task
+    from .eval.results import RESULTS_CSV, read_results
+
+    try:
+        h = _half_width(args.half_width, "--half-width")
+        csv_path = os.path.join(args.folder, RESULTS_CSV)
+        if not os.path.isfile(csv_path):
+            raise ValueError(f"{args.folder}: no {RESULTS_CSV} there (expected a leaderboard folder)")
+        rows = read_results(csv_path)
+        planners = list(dict.fromkeys(r["planner"] for r in rows))
+        reference = resolve_reference((args.reference or DEFAULT_REFERENCE).strip(), planners)
+        if reference is None:
+            raise ValueError(f"--reference {args.reference or DEFAULT_REFERENCE!r} names no planner of {args.folder}: "
+                             f"valid are {planners}")
+    except ValueError as err:
+        return _error(str(err))
+    cells = power_rule(rows, reference, h)
+    if not cells:
+        return _error(f"{args.folder}: no planner shares an episode with {reference}")
+    print(f"{args.folder}: every planner minus {reference}, paired 95% interval of half-width <= {h:g} points; "
+          f"n = ceil((1.96 sd / {h:g})^2), sd of the paired difference over the folder's episodes")
+    print(f"{'task':<20} {'time [s]':>8} {'episodes':>8} {'largest sd':>10} {'half-width':>10} {'needed':>7}  set by")
+    for task in dict.fromkeys(c.task for c in cells):
+        for t in sorted({c.time_s for c in cells if c.task == task}):
+            cs = [c for c in cells if c.task == task and c.time_s == t]
+            top = max(cs, key=lambda c: (c.needed, c.sd))
+            widths = [c.half_width for c in cs if c.half_width is not None]
+            print(f"{short_task(task):<20} {t:>8g} {max(c.episodes for c in cs):>8} {top.sd:>10.2f} "
+                  f"{(f'{max(widths):.2f}' if widths else '-'):>10} {top.needed:>7}  {top.planner}")
+    print("episodes each task needs (the most over planners and report times):")
+    for task, c in needed_per_task(cells).items():
+        flown = max(x.episodes for x in cells if x.task == task)
+        print(f"  {task}: {c.needed} (flown {flown}; set by {c.planner} at {c.time_s:g} s)")
+    print("caveat: sd is estimated from these episodes (roughly, from few): apply the rule again once the folder is "
+          "extended; the percentile bootstrap interval is about sqrt((n-1)/n) times the normal one")
+    return 0
+
+
 def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from .data import OutputWriteError, check_output_dir
     from .envs import parse_overrides
+    from .eval.against import against_plan
     from .eval.executors import ExecutorError, check_executor_args, default_backend
     from .eval.leaderboard import EpisodeFailed, Interrupted, run_leaderboard
     from .eval.plan import describe_quick, make_plan
@@ -334,9 +424,21 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
         if specs is not None and not specs:
             raise ValueError(f"--planners {' '.join(args.planners)!r} names no planner: pass planner specs "
                              "(e.g. --planners random greedy), or leave --planners out for every planner")
-        plan = make_plan(args.tasks, specs, args.episodes,
-                         args.seed, args.quick, parse_overrides(args.env), log=lambda m: print(m, flush=True))
-        reference = _reference(args.reference, plan.planners)
+        power = _half_width(args.power, "--power")
+        if args.against is not None:
+            if specs is None:
+                raise ValueError("--against needs --planners: the planners to pair with the published board")
+            plan = against_plan(args.against, specs, args.tasks, args.episodes, args.seed, args.quick,
+                                parse_overrides(args.env), log=lambda m: print(m, flush=True))
+            if os.path.realpath(args.out) == os.path.realpath(args.against):
+                raise ValueError(f"--out {args.out} is the published board itself: --against never writes there; "
+                                 "pass another --out DIR")
+            reported = [*plan.against["planners"], *plan.planners]
+        else:
+            plan = make_plan(args.tasks, specs, args.episodes, 0 if args.seed is None else args.seed, args.quick,
+                             parse_overrides(args.env), log=lambda m: print(m, flush=True))
+            reported = list(plan.planners)
+        reference = _reference(args.reference, reported)
         rerun = [_one_of(spec, plan.planners, "--rerun") for spec in args.rerun]
         backend = args.backend or ("ray" if args.address else default_backend(args.workers))
         check_executor_args(backend, args.workers, args.address)  # e.g. the ray extra, before anything runs
@@ -351,7 +453,7 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     try:
         summary = run_leaderboard(plan, args.out, backend=backend, workers=args.workers, address=args.address,
                                   progress=args.progress, command=command, reference=reference,
-                                  log=lambda m: print(m, flush=True), rerun=rerun)
+                                  log=lambda m: print(m, flush=True), rerun=rerun, power=power)
     except Interrupted as err:
         print(f"ipp-bench: {err}", file=sys.stderr)
         return EXIT_TERMINATED if sigterm.received else EXIT_INTERRUPTED
@@ -373,6 +475,8 @@ def _run_delegated(name: str, argv: Sequence[str]) -> int:
     try:
         module = importlib.import_module(module_name)
     except ImportError as err:
+        if "pip install" in str(err):  # the module's own message already names what to install
+            return _error(f"'ipp-bench {name}' is unavailable: {err}")
         return _error(f"'ipp-bench {name}' is unavailable ({err}); it needs the {extra} extra: "
                       f'pip install "ipp-bench[{extra}]"')
     parser = argparse.ArgumentParser(prog=f"ipp-bench {name}", description=text)
@@ -404,6 +508,8 @@ def _main(argv: Sequence[str] | None = None) -> int:
         return cmd_evaluate(args)
     if args.command == "leaderboard":
         return cmd_leaderboard(args, argv)
+    if args.command == "power":
+        return cmd_power(args)
     parser.error(f"unknown command {args.command!r}")  # unreachable: argparse checks the choices
     return EXIT_USAGE
 

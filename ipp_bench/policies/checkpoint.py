@@ -6,7 +6,7 @@ A checkpoint is a ``torch.save`` of a plain dict (loadable with ``weights_only=T
      "state_dict": {...AttentionNet...}, "meta": {...training config, command, task...}}
 
 An ensemble (:class:`~ipp_bench.policies.network.AttentionEnsemble`, written by
-``benchmarks/ensemble_checkpoints.py``) holds ``"members": [{...AttentionNet...}, ...]`` instead of
+``save_checkpoint(AttentionEnsemble([net_a, net_b, ...]), path)``) holds ``"members": [{...AttentionNet...}, ...]`` instead of
 ``"state_dict"``, every member of the one ``net_config``; loading it gives the ensemble.
 
 A JSON file with the same stem beside it repeats ``net_config`` and ``meta`` for people. The
@@ -27,7 +27,7 @@ from ipp_bench.policies.network import MAX_MEMBERS, AttentionEnsemble, Attention
 
 FORMAT = "ipp_bench.attention/1"
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
-SHIPPED_CHECKPOINT = CHECKPOINT_DIR / "attention_v6.pt"  # attention_v5.pt, attention_v4.pt, attention_v3.pt, attention_v2.pt, attention_v1.pt, v0: attention_grid15.pt (still shipped)
+SHIPPED_CHECKPOINT = CHECKPOINT_DIR / "attention_v6.pt"  # rebuilt by `ipp-bench train --recipe attention_v6`
 
 
 class CheckpointError(ValueError):

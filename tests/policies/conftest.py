@@ -5,7 +5,7 @@ torch = pytest.importorskip("torch")
 
 
 # One intra-op thread: these tests run tiny batches, and two OpenMP threads on a shared 2-core
-# machine were measured 100x slower than one (see ipp_bench.policies.train.set_threads).
+# machine were measured 100x slower than one (see ipp_bench.train.run.set_threads).
 torch.set_num_threads(1)
 
 

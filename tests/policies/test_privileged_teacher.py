@@ -1,4 +1,4 @@
-"""The oracle as a warm start's teacher (``--warm-start oracle``, ``joint_warm_start.py --teacher-for
+"""The oracle as a warm start's teacher (``--warm-start oracle``, ``--warm-start-for
 TASK=oracle``): a privileged teacher at training time, the student on the robot's view only."""
 
 from __future__ import annotations

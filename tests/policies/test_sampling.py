@@ -159,7 +159,7 @@ def test_a_network_on_the_five_env_features_imagines_too(tmp_path):
 
 
 def test_a_sampling_teacher_labels_dagger_states_with_the_actions_it_flies_alone():
-    """As a warm start's teacher (``benchmarks/joint_warm_start.py --teacher-for``), the sampling planner
+    """As a warm start's teacher (``ipp-bench train --warm-start-for TASK=SPEC``), the sampling planner
     sees the environment's own observation, as in a leaderboard episode: with beta 1 (round 0) the
     labels are the actions it flies alone on the same seed, and the student's states carry its own
     six features."""

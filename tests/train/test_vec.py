@@ -14,7 +14,7 @@ from stable_baselines3.common.monitor import Monitor
 import ipp_bench.envs  # noqa: F401
 from ipp_bench._threads import keep_freed_memory
 from ipp_bench.policies.sb3 import AttentionPolicy
-from ipp_bench.policies.vec import ShardedSubprocVecEnv, make_vec_env, roadmap_pos_encoding
+from ipp_bench.train.vec import ShardedSubprocVecEnv, make_vec_env, roadmap_pos_encoding
 
 TASK = "ipp_bench/Grid15-v0"
 NET = {"embed_dim": 16, "n_heads": 2, "ff_dim": 32}
@@ -130,10 +130,9 @@ def test_keep_freed_memory_reports_whether_it_applied():
 def test_metric_reward_sums_to_the_episodes_report_mean():
     """An episode's rewards add up to its report: the mean ROI uncertainty reduction over the report
     times, over 10, less what the start's read-out (before the first action) gave."""
-    import ipp_bench.envs  # noqa: F401
     from ipp_bench.planners import make_planner
     from ipp_bench.planners.base import RobotView
-    from ipp_bench.policies.vec import MetricReward
+    from ipp_bench.train.vec import MetricReward
 
     env = MetricReward(gym.make("ipp_bench/Hotspots15Eval-v2", budget_s=120.0))
     obs, _ = env.reset(seed=4)
@@ -151,33 +150,3 @@ def test_metric_reward_sums_to_the_episodes_report_mean():
     want = np.mean([row["uncertainty_reduction_pct"] for row in report]) / 10 - at_start
     assert 0 < at_start < 1 and total == pytest.approx(want, rel=1e-9)
     assert want > 1  # the test cannot pass on an empty episode
-
-
-@pytest.mark.parametrize("last", [1.0, 3.0, 0.5])
-def test_metric_reward_with_the_last_report_weighted_sums_to_the_weighted_mean(last):
-    """``--reward-last w``: the rewards add up to (r_50 + w r_100) / (1 + w) / 10 on a 120 s budget (two
-    report times), less the same of the start's read-out; w = 1 is the plain mean above."""
-    import ipp_bench.envs  # noqa: F401
-    from ipp_bench.planners import make_planner
-    from ipp_bench.planners.base import RobotView
-    from ipp_bench.policies.vec import MetricReward
-
-    def weighted(report):
-        r = [row["uncertainty_reduction_pct"] for row in report]
-        return (r[0] + last * r[1]) / (1 + last) / 10
-
-    env = MetricReward(gym.make("ipp_bench/Hotspots15Eval-v2", budget_s=120.0), last_weight=last)
-    obs, _ = env.reset(seed=5)
-    at_start = weighted(env.unwrapped.mission.report())
-    greedy = make_planner("greedy")
-    greedy.reset(RobotView(env.unwrapped), 5)
-    total, done = 0.0, False
-    while not done:
-        obs, r, term, trunc, _ = env.step(greedy.act(obs))
-        total += r
-        done = term or trunc
-    report = env.unwrapped.mission.report()
-    assert len(report) == 2 and report[1]["uncertainty_reduction_pct"] > report[0]["uncertainty_reduction_pct"] + 1
-    assert total == pytest.approx(weighted(report) - at_start, rel=1e-9)
-    with pytest.raises(ValueError, match="last_weight = 0 is invalid"):
-        MetricReward(gym.make("ipp_bench/Hotspots15Eval-v2"), last_weight=0)

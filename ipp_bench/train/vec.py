@@ -1,5 +1,8 @@
-"""The vectorised training environment of ``ipp-bench train``: where the environments run, and
+"""The training environments of ``ipp-bench train``: the reward, where the environments run, and
 what crosses from them to the policy.
+
+- :func:`make_train_env`: a run's training task with its reward (:class:`MetricReward`) and the
+  node features its network reads.
 
 - :class:`DropPosEncoding` (inside each environment): the positional encoding is a constant of
   the roadmap, so it leaves the observation; the policy holds it once
@@ -47,59 +50,60 @@ def roadmap_pos_encoding(env: gym.Env) -> np.ndarray:
 REWARDS = ("paper", "metric")
 
 
-def report_weights(mission: Any, last_weight: float = 1.0) -> list[float]:
-    """One weight per report time within the budget: 1 each, ``last_weight`` for the last."""
-    n = len(mission.config.mission.report_times_in_budget)
-    return [1.0] * (n - 1) + [float(last_weight)] if n else []
-
-
-def report_value(mission: Any, last_weight: float = 1.0) -> float:
+def report_value(mission: Any) -> float:
     """Sum over the report times (within the budget) of the ROI uncertainty reduction [%] as of that
     time, counting those not reached yet at the latest value: what the episode's metric would be if
-    nothing more were measured; the last report time weighted ``last_weight`` (1: the plain sum)."""
+    nothing more were measured."""
     times = mission.config.mission.report_times_in_budget
-    return float(sum(w * mission.metrics_at(t)["uncertainty_reduction_pct"]
-                     for w, t in zip(report_weights(mission, last_weight), times)))
+    return float(sum(mission.metrics_at(t)["uncertainty_reduction_pct"] for t in times))
 
 
 class MetricReward(gym.Wrapper):
-    """The leaderboard's metric as the reward: each step earns the change of :func:`report_value`
-    over (10 x the number of report times), so an episode's rewards sum to its mean ROI uncertainty
-    reduction over the report times / 10, less what the start's read-out gave before the first
-    action (the evaluation ROI is the truth's: a training signal the policy never observes).
+    """The leaderboard's metric as the reward (``ipp-bench train --reward metric``): each step earns
+    the change of :func:`report_value` over (10 x the number of report times), so an episode's
+    rewards sum to its mean ROI uncertainty reduction over the report times / 10, less what the
+    start's read-out gave before the first action (the evaluation ROI is the truth's: a training
+    signal the policy never observes).
 
     The paper's reward (the env's own: the step's reduction of the belief-ROI trace relative to the
     trace before it) pays a late relative reduction as much as an early one of the same ratio, so a
     policy trained on it may trade the early report times for the late ones.
-
-    ``last_weight`` w (``ipp-bench train --reward-last``): the last report time counts w times, the
-    others once, and the scale is 10 x their weights' sum, so the rewards sum to the weighted mean /
-    10 (w = 1: the leaderboard's metric).
     """
 
-    def __init__(self, env: gym.Env, last_weight: float = 1.0) -> None:
+    def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
-        if not 0.0 < float(last_weight) < float("inf"):
-            raise ValueError(f"MetricReward last_weight = {last_weight!r} is invalid: expected a number > 0")
-        self.last_weight = float(last_weight)
         self._value = 0.0
         self._scale = 1.0
 
     def reset(self, **kwargs: Any):
         obs, info = self.env.reset(**kwargs)
         mission = self.env.unwrapped.mission
-        self._value = report_value(mission, self.last_weight)
-        self._scale = 10.0 * (sum(report_weights(mission, self.last_weight)) or 1.0)
+        self._value = report_value(mission)
+        self._scale = 10.0 * (len(mission.config.mission.report_times_in_budget) or 1)
         return obs, info
 
     def step(self, action: Any):
         obs, _, terminated, truncated, info = self.env.step(action)
-        value = report_value(self.env.unwrapped.mission, self.last_weight)
+        value = report_value(self.env.unwrapped.mission)
         reward, self._value = (value - self._value) / self._scale, value
         return obs, reward, terminated, truncated, info
 
     def action_masks(self) -> np.ndarray:
         return self.env.unwrapped.action_masks()
+
+
+def make_train_env(cfg: Any, index: int = 0) -> gym.Env:
+    """Training task ``index`` of a run (``cfg.tasks[index % n]``, a :class:`~ipp_bench.train.args.TrainArgs`)
+    with its ``--env`` overrides, its reward and the node features its network reads."""
+    from ipp_bench.envs.registry import make_env, parse_overrides
+    from ipp_bench.policies.features import gain_feature_wrapper
+
+    env = make_env(cfg.tasks[index % len(cfg.tasks)], **parse_overrides(cfg.env))
+    if cfg.reward == "metric":
+        env = MetricReward(env)
+    if cfg.invariant:
+        return gain_feature_wrapper(env, invariant=True)
+    return gain_feature_wrapper(env) if cfg.gain_feature else env
 
 
 class DropPosEncoding(gym.ObservationWrapper):

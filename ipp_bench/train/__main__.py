@@ -1,0 +1,7 @@
+"""``python -m ipp_bench.train``: the same as ``ipp-bench train``."""
+
+import sys
+
+from ipp_bench.train.run import main
+
+sys.exit(main())

@@ -212,13 +212,16 @@ _GRAPHS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 def duration_graph(view: Any) -> sparse.csr_matrix:
     """(N, N) sparse matrix of the roadmap's legs weighted by their flight time [s] by the mission's
-    clock (what the quickest roadmap path to a target costs); built once per roadmap and mission."""
+    clock (what the quickest roadmap path to a target costs), whatever the drone's state
+    (:meth:`~ipp_bench.mission.Mission.static_leg_durations`); built once per roadmap and mission
+    constants, so the same whichever decision of whichever episode built it."""
     key = view.static_key()
     cached = _GRAPHS.get(view.roadmap)
     if cached is None or cached[0] != key:
         rm = view.roadmap
         n, k = rm.neighbours.shape
-        durations = np.concatenate([view.neighbour_durations(i) for i in range(n)])
+        # never from the drone's current state: the cache outlives the decision (and the episode) that built it
+        durations = np.concatenate([view.static_neighbour_durations(i) for i in range(n)])
         graph = sparse.csr_matrix((durations, (np.repeat(np.arange(n), k), rm.neighbours.ravel())), shape=(n, n))
         cached = _GRAPHS[view.roadmap] = (key, graph)
     return cached[1]

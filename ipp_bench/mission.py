@@ -234,6 +234,15 @@ class Mission:
         as the platform flies them. The one rule of what a leg costs."""
         return self.platform.leg_durations(self, start_xyz, end_xyzs)
 
+    def static_leg_durations(self, start_xyz, end_xyzs) -> np.ndarray:
+        """(K,) flight times [s] of the legs from ``start_xyz`` to each of the (K, 3) ``end_xyzs``
+        whatever the drone is doing now: :meth:`leg_durations` is exact from the current position (the
+        platform knows the drone's velocity there), this one never reads the drone's state, so a cache
+        built from it is the same whenever it is built. The platform's ``static_leg_durations`` where it
+        has one (a platform whose durations never read the drone's state needs none)."""
+        static = getattr(self.platform, "static_leg_durations", None)
+        return (static or self.platform.leg_durations)(self, start_xyz, end_xyzs)
+
     def leg_time(self, xyz) -> float:
         """Flight time [s] of the leg from the current position to ``xyz``."""
         return float(self.leg_durations(self.position, xyz)[0])

@@ -99,6 +99,11 @@ class CameraErrorLegs:
             return continuous_durations(self.ref_pos, self.ref_vel, end_xyzs, speed, self.ramp_s)
         return continuous_durations(start, None, end_xyzs, speed, self.ramp_s)
 
+    def static_leg_durations(self, mission: Mission, start_xyz, end_xyzs) -> np.ndarray:
+        """The upper bound over incoming velocities from ``start_xyz``, also from the current position."""
+        start = np.asarray(start_xyz, dtype=np.float64).reshape(3)
+        return continuous_durations(start, None, end_xyzs, mission.config.mission.speed, self.ramp_s)
+
     def fly(self, mission: Mission, target: np.ndarray, length_m: float) -> LegOutcome:
         del length_m
         speed, spacing = mission.config.mission.speed, mission.config.mission.measurement_spacing

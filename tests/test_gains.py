@@ -9,8 +9,8 @@ from scipy.sparse.csgraph import dijkstra
 from ipp_bench import metrics as M
 from ipp_bench.belief import GPBelief
 from ipp_bench.envs import make_env
-from ipp_bench.gains import LookBatch, LookGain, beats, best_far_target, duration_graph, far_move, first_best
-from ipp_bench.planners import make_planner
+from ipp_bench.gains import _GRAPHS, LookBatch, LookGain, beats, best_far_target, duration_graph, far_move, first_best
+from ipp_bench.planners import make_planner, view_for
 from ipp_bench.planners.base import RobotView
 
 HOT = "ipp_bench/Hotspots30Eval-v2"
@@ -220,3 +220,23 @@ def test_far_move_keeps_the_best_score_unless_a_far_target_beats_it():
     gains[far] = scores.max() * t[far] * (1 + 1e-12)  # a tie by TIE_RTOL: the best score stays
     assert not beats(scores.max() * (1 + 1e-12), scores.max())
     assert far_move(view, obs, scores, targets, lambda: gains) == first_best(scores)
+
+
+def _built_now(view) -> np.ndarray:
+    _GRAPHS.clear()  # the cache kept across decisions and episodes, built afresh here
+    return duration_graph(view).toarray()
+
+
+def test_the_duration_graph_is_the_same_whenever_it_is_built():
+    # the twin's clock is exact from the drone's current state (its velocity) and an upper bound from
+    # elsewhere: a graph built with the current node's row exact would depend on the decision (and the
+    # episode) that built it, and every later episode of the process would plan on it
+    env = make_env("ipp_bench/Weed15Twin-v1")
+    env.reset(seed=3)
+    view = view_for(make_planner("greedy"), env)
+    at_start = _built_now(view)
+    for _ in range(4):  # legs flown: the drone at another node, moving
+        env.step(int(np.flatnonzero(env.action_masks())[-1]))
+    assert np.array_equal(_built_now(view), at_start)
+    env.reset(seed=7)  # another episode, another start
+    assert np.array_equal(_built_now(view), at_start)

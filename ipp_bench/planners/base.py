@@ -141,6 +141,13 @@ class RobotView:
         start = rm.positions[node] if from_xyz is None else from_xyz
         return self.leg_durations(start, rm.positions[rm.neighbours[node]])
 
+    def static_neighbour_durations(self, node: int) -> np.ndarray:
+        """(k,) flight times [s] from node ``node`` to its neighbours whatever the drone's state now
+        (:meth:`~ipp_bench.mission.Mission.static_leg_durations`): what caches kept across decisions and
+        episodes hold, so that what they hold does not depend on when they were built."""
+        rm = self.roadmap
+        return _ENVS[self].mission.static_leg_durations(rm.positions[node], rm.positions[rm.neighbours[node]])
+
     @staticmethod
     def fits_budget(duration_s, remaining_s):
         """Whether legs of ``duration_s`` fit ``remaining_s`` [s]: the mission's rule, for look-ahead."""

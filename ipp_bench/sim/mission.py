@@ -83,6 +83,13 @@ class MuJoCoPlatform:
         here = np.linalg.norm(start - mission.position) <= 1e-6
         return self.flight.leg_durations(ends, None if here else start)
 
+    def static_leg_durations(self, mission: Mission, start_xyz, end_xyzs) -> np.ndarray:
+        """Flight time [s] of legs from ``start_xyz`` to each of ``end_xyzs`` (K, 3) whatever the drone's
+        state now (v1: the upper bound over the incoming velocity, also from the current position)."""
+        del mission
+        ends = np.asarray(end_xyzs, dtype=np.float64).reshape(-1, 3)
+        return self.flight.leg_durations(ends, np.asarray(start_xyz, dtype=np.float64).reshape(3))
+
     def read_here(self, mission: Mission, time_s: float) -> list[Record]:
         del mission  # the drone is where it is
         return [self._read(float(time_s))]

@@ -275,10 +275,20 @@ def test_a_committed_episode_flies_again_the_same(folder, task, label):
         return
     message = (f"baselines/{folder}: {task} {label} seed {seed} flown again ({spec}) differs from the "
                "committed rows:\n  " + "\n  ".join(differences))
+    if "MuJoCo" in task and not _opencv_has_avx2():
+        pytest.xfail(f"{message}\n(expected where OpenCV does not dispatch AVX2: the camera's motion blur, "
+                     "cv2.filter2D on the 8-bit frame, rounds some pixels the other way)")
     if kind in CPU_DEPENDENT and CPU_DEPENDENT[kind] not in _blas_architecture().split(","):
         pytest.xfail(f"{message}\n(expected on OpenBLAS kernels {_blas_architecture()}: the committed {kind} rows "
                      f"are {CPU_DEPENDENT[kind]}'s)")
     pytest.fail(message)
+
+
+def _opencv_has_avx2() -> bool:
+    """Whether OpenCV dispatches its AVX2 code paths here (the committed MuJoCo rows' paths)."""
+    import cv2
+
+    return bool(cv2.checkHardwareSupport(11))  # 11: CV_CPU_AVX2
 
 
 def test_every_reflight_spec_is_documented():

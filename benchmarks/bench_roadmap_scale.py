@@ -52,7 +52,8 @@ def child(size: int, method: str, task: str, compare: bool) -> None:
     n = positions.shape[0]
     out = {"size": size, "method": method, "nodes": n, "knn_s": t1 - t0, "encoding_s": t2 - t1,
            "knn_peak_mb": (knn_peak - base) / 1024, "peak_mb": (peak - base) / 1024, "process_mb": peak / 1024,
-           "estimate_mb": encoding_bytes(config) / 2**20, "auto": method == ("dense" if n <= DENSE_ENCODING_MAX_NODES else "sparse"),
+           "estimate_mb": encoding_bytes(config) / 2**20,
+           "auto": method == ("dense" if n <= DENSE_ENCODING_MAX_NODES else "sparse"),
            "costs_finite": bool(np.isfinite(costs).all())}
     if compare:
         from scipy.linalg import subspace_angles
@@ -79,7 +80,8 @@ def run_child(size: int, method: str, task: str, compare: bool) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", type=int, nargs="+", default=[15, 30, 50, 128], help="cells a side")
-    parser.add_argument("--task", default="ipp_bench/Hotspots30Eval-v2", help="task whose altitudes, k, pe_dim are used")
+    parser.add_argument("--task", default="ipp_bench/Hotspots30Eval-v2",
+                        help="task whose altitudes, k, pe_dim are used")
     parser.add_argument("--dense-max-nodes", type=int, default=5000, help="largest roadmap the dense solver is run on")
     parser.add_argument("--child", nargs=2, metavar=("SIZE", "METHOD"), help=argparse.SUPPRESS)
     parser.add_argument("--compare", action="store_true", help=argparse.SUPPRESS)
@@ -90,8 +92,8 @@ def main() -> None:
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"python {platform.python_version()}, numpy {np.__version__}, BLAS threads 1, "
           f"load {os.getloadavg()[0]:.2f}")
-    print("| grid | nodes | solver | k-NN + costs [s] | encoding [s] | total [s] | peak [MB] | process peak [MB] | estimate [MB] | "
-          "sparse vs dense: angle / eigenvalue / entry |")
+    print("| grid | nodes | solver | k-NN + costs [s] | encoding [s] | total [s] | peak [MB] | process peak [MB] | "
+          "estimate [MB] | sparse vs dense: angle / eigenvalue / entry |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for size in args.sizes:
         from ipp_bench.envs import task_config
@@ -106,9 +108,11 @@ def main() -> None:
             mark = " (auto)" if r["auto"] else ""
             estimate = f"{r['estimate_mb']:.0f}" if r["auto"] else ""  # the estimate is of the solver auto picks
             print(f"| {size} x {size} | {r['nodes']} | {method}{mark} | {r['knn_s']:.3f} | {r['encoding_s']:.3f} | "
-                  f"{r['knn_s'] + r['encoding_s']:.2f} | {r['peak_mb']:.0f} | {r['process_mb']:.0f} | {estimate} | {agree} |", flush=True)
+                  f"{r['knn_s'] + r['encoding_s']:.2f} | {r['peak_mb']:.0f} | {r['process_mb']:.0f} | {estimate} | "
+                  f"{agree} |", flush=True)
         if nodes > args.dense_max_nodes:
-            print(f"| {size} x {size} | {nodes} | dense | skipped: a {nodes**2 * 8 / 2**30:.2g} GiB Laplacian | | | | | | |")
+            print(f"| {size} x {size} | {nodes} | dense | skipped: a {nodes**2 * 8 / 2**30:.2g} GiB Laplacian "
+                  "| | | | | | |")
     print(f"load at the end {os.getloadavg()[0]:.2f}")
 
 

@@ -93,7 +93,8 @@ def main() -> None:
             e, rate = tracking(model, disturbed)
             print(f"{'wind + estimator' if disturbed else 'calm':>16} {model:>6}: {np.sqrt(np.mean(e ** 2)):.4f} / "
                   f"{np.percentile(e, 95):.4f} / {e.max():.4f} m over {len(e)} steps; {rate:.0f} steps/s")
-    print(f"\n## full missions of {TASK} at 200 s: uncertainty red. / RMSE red. [%], NIS per dof, wall [s] (x real time),"
+    print(f"\n## full missions of {TASK} at 200 s: uncertainty red. / RMSE red. [%], NIS per dof, "
+          "wall [s] (x real time),"
           " distance [m]")
     res = {model: missions(model, args.planners, args.seeds) for model in ("thrust", "speed")}
     for key in res["thrust"]:

@@ -28,6 +28,7 @@ import time
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
+from timing import per_frame  # noqa: E402  (benchmarks/timing.py)
 
 import ipp_bench.envs as envs  # noqa: E402
 from ipp_bench._threads import limit_blas_threads  # noqa: E402
@@ -37,7 +38,6 @@ from ipp_bench.sensor import Sensor  # noqa: E402
 from ipp_bench.sim.controller import ContinuousLeg  # noqa: E402
 from ipp_bench.sim.gl import mujoco  # noqa: E402
 from ipp_bench.sim.world import SimConfig, WeedWorld  # noqa: E402
-from timing import per_frame  # noqa: E402  (benchmarks/timing.py)
 
 
 def bench_camera(frames: int) -> None:

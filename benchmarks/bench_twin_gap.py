@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     planners = sorted({k[0] for k in mj} & {k[0] for k in tw})
     lines = ["# Deployment gap: graph twin against MuJoCo", "",
              "Made by `python benchmarks/bench_twin_gap.py --mujoco " + args.mujoco + " --twin " + args.twin
-             + (f" --out {args.out}`" if args.out else "`") + f"; ROI uncertainty reduction [%], mean over the "
+             + (f" --out {args.out}`" if args.out else "`") + "; ROI uncertainty reduction [%], mean over the "
              "episodes both files share (same seeds, same fields).", "",
              "| planner | " + " | ".join(f"{t:g} s MuJoCo / twin / gap" for t in args.times) + " |",
              "|---|" + "---|" * len(args.times)]

@@ -30,18 +30,18 @@ import platform
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
+from timing import per_frame  # noqa: E402  (benchmarks/timing.py)
 
 from ipp_bench._threads import limit_blas_threads  # noqa: E402
 from ipp_bench.config import GridConfig, SensorConfig  # noqa: E402
 from ipp_bench.fields import make_field  # noqa: E402
 from ipp_bench.sim.camera import form_image  # noqa: E402
 from ipp_bench.sim.gl import mujoco  # noqa: E402
-from ipp_bench.sim.scene import SceneConfig, WeedScene  # noqa: E402
 from ipp_bench.sim.render import SceneRenderer  # noqa: E402
+from ipp_bench.sim.scene import SceneConfig, WeedScene  # noqa: E402
 from ipp_bench.sim.vision_v0 import GroundProjector as V0Projector  # noqa: E402
 from ipp_bench.sim.vision_v0 import HSVThreshold as V0Threshold  # noqa: E402
 from ipp_bench.sim.world import SimConfig, WeedWorld  # noqa: E402
-from timing import per_frame  # noqa: E402  (benchmarks/timing.py)
 
 
 def fmt(t: float) -> str:

@@ -119,7 +119,7 @@ def test_covariance_stays_symmetric_psd_over_many_updates():
 
     rng = np.random.default_rng(11)
     b = GPBelief.from_grid((8, 8))
-    for i in range(3 * RESYMMETRISE_EVERY):
+    for _ in range(3 * RESYMMETRISE_EVERY):
         cells = np.sort(rng.choice(64, size=4, replace=False))
         b.update_local(cells, np.full((1, 4), 0.25), rng.normal(size=1), np.array([0.04]))
     np.testing.assert_array_equal(b.cov, b.cov.T)  # just re-symmetrised

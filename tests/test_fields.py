@@ -23,7 +23,7 @@ def test_regions_field_has_high_and_low_regions():
     f = make_field("regions", GridConfig(15, 15), np.random.default_rng(0))
     high = f >= 0.6
     assert 0.15 <= high.mean() <= 0.45
-    assert np.all((f[~high] <= 0.3 + 1e-12))
+    assert np.all(f[~high] <= 0.3 + 1e-12)
 
 
 def test_unknown_field_names_the_valid_ones():

@@ -181,7 +181,8 @@ def test_sparse_encoding_of_degenerate_eigenvalues_spans_each_eigenspace():
 
 
 def test_laplacian_encoding_refuses_an_unknown_method():
-    with pytest.raises(ValueError, match=r"method = 'arpack' is invalid: expected one of \('auto', 'dense', 'sparse'\)"):
+    expected = r"method = 'arpack' is invalid: expected one of \('auto', 'dense', 'sparse'\)"
+    with pytest.raises(ValueError, match=expected):
         laplacian_encoding(np.zeros((4, 1), dtype=np.int64), 2, method="arpack")
     with pytest.raises(ValueError, match=r"method = 'sparse' needs more than dim \+ 1 = 33 nodes, the graph has 30"):
         laplacian_encoding(np.zeros((30, 1), dtype=np.int64), 32, method="sparse")

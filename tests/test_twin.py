@@ -47,7 +47,7 @@ def test_a_tilted_frame_misses_the_cells_at_its_edge_on_one_side():
 
 def test_persistent_errors_have_the_models_variance_and_correlations():
     cfg = ipp_bench.envs.task_spec(TASK).config.sensor
-    e1, e2, u1 = [], [], []
+    e1, e2 = [], []
     for s in range(400):
         m = _mission(s)
         scale = value_scale(m._truth_flat, cfg.noise_floor)

@@ -3,7 +3,8 @@
 A task file holds its id (``ipp_bench/<Name>-v<N>``), entry point, tags and the sections of an
 :class:`~ipp_bench.config.IPPConfig`. The entry point names a class of this package
 (``ipp_bench.<module>:<Class>``, :data:`SUITE_ENTRY_POINTS`); nothing else is ever imported, and
-the class only when an env is made, after the whole file was checked. Registration is idempotent; ``tagged("benchmark")`` is the
+the class only when an env is made, after the whole file was checked. Registration is idempotent;
+``tagged("benchmark")`` is the
 set the leaderboard runs (dm_control's habit of deriving benchmark sets from tags).
 """
 

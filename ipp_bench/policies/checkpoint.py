@@ -6,7 +6,8 @@ A checkpoint is a ``torch.save`` of a plain dict (loadable with ``weights_only=T
      "state_dict": {...AttentionNet...}, "meta": {...training config, command, task...}}
 
 An ensemble (:class:`~ipp_bench.policies.network.AttentionEnsemble`, written by
-``save_checkpoint(AttentionEnsemble([net_a, net_b, ...]), path)``) holds ``"members": [{...AttentionNet...}, ...]`` instead of
+``save_checkpoint(AttentionEnsemble([net_a, net_b, ...]), path)``) holds
+``"members": [{...AttentionNet...}, ...]`` instead of
 ``"state_dict"``, every member of the one ``net_config``; loading it gives the ensemble.
 
 A JSON file with the same stem beside it repeats ``net_config`` and ``meta`` for people. The

@@ -335,7 +335,9 @@ def test_rerun_refreshes_one_planners_rows_after_its_checkpoint_changed(tmp_path
     write_net(0)
     spec = f"attention:checkpoint={ckpt}"
     out = tmp_path / "lb"
-    plan = lambda: tiny_plan(tasks=TASKS[:1], planners=("random", spec))
+    def plan():
+        return tiny_plan(tasks=TASKS[:1], planners=("random", spec))
+
     run_tiny(out, plan(), command="ipp-bench leaderboard (the recorded command)")
     before = results(out)
     write_net(1)  # retrained: another network behind the same path
@@ -346,7 +348,9 @@ def test_rerun_refreshes_one_planners_rows_after_its_checkpoint_changed(tmp_path
     summary = run_tiny(out, plan(), rerun=(spec,), command="ipp-bench leaderboard (the recorded command)")
     assert summary.ran == EPISODES
     after = results(out)
-    keep = lambda rows, p: [r for r in without_timing(rows) if r["planner"] == p]
+    def keep(rows, p):
+        return [r for r in without_timing(rows) if r["planner"] == p]
+
     assert keep(after, "random") == keep(before, "random")
     assert keep(after, spec) != keep(before, spec) and len(keep(after, spec)) == len(keep(before, spec))
     meta = json.loads((out / "run.json").read_text())

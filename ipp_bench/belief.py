@@ -394,7 +394,7 @@ class WhiteNoiseBelief:
         return normalised_innovation(self.field, cells, W, np.concatenate(zs), var)
 
 
-def belief_model(field: GPBelief, sensor) -> "WhiteNoiseBelief | PersistentErrorBelief":
+def belief_model(field: GPBelief, sensor) -> WhiteNoiseBelief | PersistentErrorBelief:
     """The belief a mission updates, for the sensor constants ``sensor`` (a ``SensorConfig``): the
     camera-error states where the sensor has them (``camera_error_states``), else white noise.
     Both keep ``field`` (the belief planners and metrics read) current."""
@@ -402,7 +402,7 @@ def belief_model(field: GPBelief, sensor) -> "WhiteNoiseBelief | PersistentError
     return cls(field, sensor)
 
 
-def error_states(mission) -> "PersistentErrorBelief | None":
+def error_states(mission) -> PersistentErrorBelief | None:
     """The belief model of ``mission`` (a :class:`~ipp_bench.mission.Mission`) if it carries the camera's
     repeated error as states (:class:`PersistentErrorBelief`: the deployment and its twin), else None
     (white read-out noise)."""
@@ -410,5 +410,5 @@ def error_states(mission) -> "PersistentErrorBelief | None":
     return model if isinstance(model, PersistentErrorBelief) else None
 
 
-__all__ = ["GPBelief", "PersistentErrorBelief", "WhiteNoiseBelief", "belief_model", "cell_centres", "error_states", "matern32",
-           "normalised_innovation", "prior_covariance", "value_scale"]
+__all__ = ["GPBelief", "PersistentErrorBelief", "WhiteNoiseBelief", "belief_model", "cell_centres", "error_states",
+           "matern32", "normalised_innovation", "prior_covariance", "value_scale"]

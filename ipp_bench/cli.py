@@ -43,7 +43,7 @@ EXIT_TERMINATED = 143  # 128 + SIGTERM
 
 # subcommand -> (module, add_arguments, run, extra)
 _DELEGATED = {
-    "train": ("ipp_bench.train.run", "add_train_arguments", "run_train", "train",
+    "train": ("ipp_bench.train.command", "add_train_arguments", "run_train", "train",
               "train the attention policy (DAgger warm start + MaskablePPO), or rebuild a shipped one "
               "(--recipe attention_v6)"),
     "demo": ("ipp_bench.eval.demo", "add_demo_arguments", "run_demo", "sim",

@@ -21,6 +21,9 @@ from __future__ import annotations
 
 from typing import Any
 
+import ipp_bench.sim.gl  # noqa: F401  (chooses MUJOCO_GL before dm_control imports mujoco)
+
+# isort: split
 from dm_control.rl import control
 
 DEFAULT_TASK = "ipp_bench/MuJoCoWeed15-v1"

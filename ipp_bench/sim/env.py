@@ -23,10 +23,13 @@ import copy
 from typing import Any
 
 import numpy as np
+
+import ipp_bench.sim.gl  # noqa: F401  (chooses MUJOCO_GL before dm_control imports mujoco)
+
+# isort: split
 from dm_control.rl import control
 from dm_env import specs
 
-import ipp_bench.sim.gl  # noqa: F401  (chooses MUJOCO_GL before dm_control imports mujoco)
 from ipp_bench.config import IPPConfig
 from ipp_bench.envs.graph import GraphIPPEnv
 from ipp_bench.envs.panels import render_mission

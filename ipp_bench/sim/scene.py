@@ -26,9 +26,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from dm_control import mjcf  # noqa: E402  (after ipp_bench.sim.gl chose the GL backend)
 
-from ipp_bench.sim.gl import mujoco
+from ipp_bench.sim.gl import mujoco  # chooses MUJOCO_GL before dm_control imports mujoco
+
+# isort: split
+from dm_control import mjcf
+
 from ipp_bench.sim.quadrotor import QuadrotorParams, airframe_mjcf, airframe_params, free_joint
 
 

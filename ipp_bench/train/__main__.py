@@ -2,6 +2,6 @@
 
 import sys
 
-from ipp_bench.train.run import main
+from ipp_bench.train.command import main
 
 sys.exit(main())

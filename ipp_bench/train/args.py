@@ -264,7 +264,7 @@ def check_args(cfg: TrainArgs, deep: bool = True) -> None:
     import torch
 
     from ipp_bench.envs import resolve_task
-    from ipp_bench.train.warmstart import check_expert, check_expert_on
+    from ipp_bench.train.teachers import check_expert, check_expert_on
 
     for name, (low, high) in _INTEGER_RANGES.items():
         check_integer(flag(name), getattr(cfg, name), low, high)

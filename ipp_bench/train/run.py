@@ -1,4 +1,4 @@
-"""``ipp-bench train``: the run folder, its state and resume, and the command's entry point.
+"""``ipp-bench train``: the run folder, its state and resume (the command: :mod:`~ipp_bench.train.command`).
 
 One run is a warm start (:mod:`~ipp_bench.train.warmstart`, optional), then PPO
 (:mod:`~ipp_bench.train.ppo`, ``--total-steps 0``: none), both resumable, in one run folder
@@ -15,13 +15,12 @@ One run is a warm start (:mod:`~ipp_bench.train.warmstart`, optional), then PPO
     last.pt          final policy in the same format
 
 ``--resume`` continues a run: the warm start from its last completed round, PPO from
-``latest.zip``; the step counter continues from the checkpoint. ``--recipe`` runs the stages of a
-recipe (:mod:`~ipp_bench.train.recipe`), each such a run folder.
+``latest.zip``; the step counter continues from the checkpoint. A recipe
+(:mod:`~ipp_bench.train.recipe`) runs each of its stages in such a run folder.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 import shlex
 import signal
@@ -39,10 +38,8 @@ from ipp_bench.train.args import (
     RESUMABLE,
     VAL_SEED0,
     TrainArgs,
-    add_train_arguments,
     check_args,
     command_line,
-    explicit,
     load_init,
 )
 from ipp_bench.train.files import read_json, write_json_atomic
@@ -235,48 +232,3 @@ def execute(cfg: TrainArgs, run: Path, again: str = "") -> int:
         f"policy in {run / 'export.pt'}")
     say.close()
     return 0
-
-
-def run_train(args: argparse.Namespace) -> int:
-    """Run ``ipp-bench train`` with parsed arguments; returns the exit code."""
-    from ipp_bench.policies.checkpoint import CheckpointError
-
-    def error(msg: str) -> int:
-        print(f"ipp-bench train: error: {msg}", file=sys.stderr)
-        return 2
-
-    if (args.dry_run or args.from_stage) and not args.recipe:
-        return error(f"{'--dry-run' if args.dry_run else '--from-stage'} needs --recipe NAME")
-    if args.recipe:
-        from ipp_bench.train.recipe import run_recipe_command
-
-        return run_recipe_command(args)
-    if args.export:
-        from ipp_bench.train.export import export_zip
-
-        try:
-            path = export_zip(args.export)
-        except CheckpointError as err:
-            return error(f"--export {err}")
-        print(f"wrote {path}")
-        return 0
-    if args.validate:
-        from ipp_bench.train.validation import DEFAULT_VALIDATION_TASKS, validate_checkpoints
-
-        set_threads(args.threads or 0)
-        episodes = args.eval_episodes if args.eval_episodes is not None else 16
-        if episodes < 1:
-            return error(f"--eval-episodes {episodes} is invalid: expected an integer >= 1")
-        return validate_checkpoints(args.validate, args.val_task or list(DEFAULT_VALIDATION_TASKS), episodes,
-                                    args.json)
-    try:
-        cfg, run = resolve_config(explicit(args), args.resume)
-    except ValueError as err:
-        return error(str(err))
-    return execute(cfg, run)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="ipp-bench train", description=__doc__.split("\n\n")[0])
-    add_train_arguments(parser)
-    return run_train(parser.parse_args(argv))

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from ipp_bench.train.args import TrainArgs, command_line
+from ipp_bench.train.command import main
 from ipp_bench.train.recipe import RecipeError, known_recipes, load_recipe, plan
-from ipp_bench.train.run import main
 
 SHIPPED = Path(__file__).resolve().parents[2] / "ipp_bench" / "policies" / "checkpoints"
 

@@ -82,7 +82,7 @@ def _logged_steps(run):
 
 
 def test_bad_vec_env_is_refused_before_the_run_folder(tmp_path, capsys):
-    from ipp_bench.train.run import main
+    from ipp_bench.train.command import main
 
     run = tmp_path / "run"
     with pytest.raises(SystemExit) as exit_:  # argparse: not one of the choices
@@ -92,7 +92,7 @@ def test_bad_vec_env_is_refused_before_the_run_folder(tmp_path, capsys):
 
 
 def test_warm_start_with_a_non_graph_planner_is_refused_before_the_run_folder(tmp_path, capsys):
-    from ipp_bench.train.run import main
+    from ipp_bench.train.command import main
 
     for bad, why in (("coverage", "roadmap planner"), ("nope", "unknown planner")):
         run = tmp_path / bad
@@ -116,7 +116,7 @@ def test_warm_start_episodes_never_reach_the_validation_seeds(tmp_path, capsys):
         with pytest.raises(ValueError, match=r"--seed 10: .*10000030\.\.10000179.*choose another seed"):
             check_warm_start_seeds(args(seed, eval_episodes))
     check_warm_start_seeds(TrainArgs(seed=10, eval_episodes=100, warm_start="none"))  # no warm start, no episodes
-    from ipp_bench.train.run import main
+    from ipp_bench.train.command import main
 
     run = tmp_path / "run"
     assert main([*TINY, "--seed", "10", "--eval-episodes", "40", "--out", str(run)]) == 2
@@ -125,7 +125,7 @@ def test_warm_start_episodes_never_reach_the_validation_seeds(tmp_path, capsys):
 
 
 def test_export_refuses_missing_and_wrong_files(tmp_path, capsys):
-    from ipp_bench.train.run import main
+    from ipp_bench.train.command import main
 
     assert main(["--export", str(tmp_path / "missing.zip")]) == 2
     err = capsys.readouterr().err
@@ -194,7 +194,7 @@ def test_init_checkpoint_must_match_the_network_options(tmp_path):
 def _refused_in_one_line(cases, tmp_path, capsys):
     """Each (extra options, expected text): `ipp-bench train` exits 2 with one line saying it, and
     makes no run folder."""
-    from ipp_bench.train.run import main
+    from ipp_bench.train.command import main
 
     for i, (extra, why) in enumerate(cases):
         run = tmp_path / f"r{i}"
@@ -205,7 +205,7 @@ def _refused_in_one_line(cases, tmp_path, capsys):
 
 
 def test_mix_is_checked_before_the_run_folder(tmp_path, capsys):
-    from ipp_bench.train.run import main
+    from ipp_bench.train.command import main
 
     cases = [
         (["--mix", "ipp_bench/Grid30Train-v1"], "PPO holds one roadmap"),
@@ -226,7 +226,7 @@ def test_mix_is_checked_before_the_run_folder(tmp_path, capsys):
 
 
 def test_options_no_recipe_uses_are_gone(capsys):
-    from ipp_bench.train.run import main
+    from ipp_bench.train.command import main
 
     for gone in ("--rate-skip", "--skip-teacher=far", "--reward-last=3", "--bc-distill", "--rate-skip-init=20"):
         with pytest.raises(SystemExit):
@@ -267,7 +267,7 @@ def test_a_users_task_file_trains_in_worker_processes(tmp_path):
 
 
 def test_bad_numbers_and_folders_are_one_line_before_the_run_folder(tmp_path, capsys):
-    from ipp_bench.train.run import main
+    from ipp_bench.train.command import main
 
     afile = tmp_path / "afile"
     afile.write_text("x")
@@ -296,7 +296,7 @@ def test_bad_numbers_and_folders_are_one_line_before_the_run_folder(tmp_path, ca
 
 
 def test_resume_with_damaged_files_names_the_file(tmp_path, capsys):
-    from ipp_bench.train.run import main
+    from ipp_bench.train.command import main
 
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
@@ -354,7 +354,7 @@ def test_validate_scores_checkpoints_against_greedy_on_the_held_out_seeds(tmp_pa
 
     from ipp_bench.policies.checkpoint import save_checkpoint
     from ipp_bench.policies.network import AttentionNet, NetConfig
-    from ipp_bench.train.run import main
+    from ipp_bench.train.command import main
     from ipp_bench.train.validation import evaluate_planner
 
     torch.manual_seed(0)

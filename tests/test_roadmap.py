@@ -131,7 +131,7 @@ def _assert_same_eigenspace(neighbours, sparse, dim, tol=1e-6, signs=True):
 
 
 def test_every_task_keeps_its_dense_encoding_bit_for_bit():
-    """Every registered task (15 x 15 to 30 x 30, at most 1 800 nodes) gets the pre-issue-20 encoding; the
+    """Every registered task (15 x 15 to 30 x 30, at most 1 800 nodes) gets the dense encoding; the
     large tasks (tag ``large``, 128 x 128) are above the dense limit."""
     from ipp_bench.envs import TASKS
     from ipp_bench.roadmap import DENSE_ENCODING_MAX_NODES
@@ -190,7 +190,7 @@ def test_laplacian_encoding_refuses_an_unknown_method():
 
 @pytest.mark.slow
 def test_roadmap_and_encoding_of_128_by_128_cells():
-    """The issue-20 size: 32 768 nodes, the k / n_levels rule kept, sparse eigenvectors with the fixed sign."""
+    """The 128 x 128 size: 32 768 nodes, the k / n_levels rule kept, sparse eigenvectors with the fixed sign."""
     from ipp_bench.roadmap import sparse_laplacian
 
     rm = Roadmap.build(GridConfig(128, 128, 2.5), GraphConfig(), 2.0)

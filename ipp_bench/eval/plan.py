@@ -106,8 +106,8 @@ def report_times(task: str, env_overrides: dict[str, Any] | None = None) -> tupl
 DIGEST_ERA_ADDED_FIELDS: tuple[tuple[str, ...], ...] = (
     ("nugget", "binning_noise_exponent", "episode_seeds"),  # benchmark v1
     ("persistent_var", "persistent_var_binned", "persistent_corr", "noise_floor"),  # camera-error states
-    ("belief", "belief_window"),  # the window belief (issue 20)
-    ("persistent_neighbour_corr",),  # binned read-outs share their persistent error (issue 18)
+    ("belief", "belief_window"),  # the window belief
+    ("persistent_neighbour_corr",),  # binned read-outs share their persistent error
 )
 
 

@@ -65,7 +65,7 @@ def _logger(run: Path):
     from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoardOutputFormat
 
     class AppendingCSV(CSVOutputFormat):
-        """SB3's CSV output, keeping the rows of earlier sessions of the run."""
+        """SB3's CSV output, keeping the rows written before a resume."""
 
         def __init__(self, filename: str) -> None:
             old = Path(filename).read_text() if Path(filename).is_file() else ""

@@ -1,6 +1,6 @@
 """WindowBelief (the belief for large grids) against the dense formula: exact where its window covers
 the grid, the windowed model's own dense formula where it does not, and the dense GP within the
-the stated tolerances after a whole flight on 30 x 30 with the v1 and v2 priors."""
+stated tolerances after a whole flight on 30 x 30 with the v1 and v2 priors."""
 
 import numpy as np
 import pytest

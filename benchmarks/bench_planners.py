@@ -2,7 +2,8 @@
 
 Prints figures, never pass/fail. Run: ``python benchmarks/bench_planners.py [--episodes 2]
 [--planners random coverage greedy mcts cmaes attention] [--tasks ...]``. All planners are timed
-in the same run, so their ratios are comparable even on a noisy machine.
+in the same run, so their ratios are comparable even on a noisy machine (the load average is printed
+first). ``benchmarks/bench_search.py`` times MCTS and CMA-ES against their reference evaluations.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1000)
     args = parser.parse_args()
     limit_blas_threads()
-    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}")
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}, "
+          "load {:.2f} {:.2f} {:.2f}".format(*os.getloadavg()))
     print(f"{'task':<26} {'planner':<34} {'decisions':>9} {'median ms':>10} {'mean ms':>9} {'max ms':>9}")
     for task in args.tasks:
         for spec in args.planners:

@@ -102,7 +102,8 @@ class MCTSConfig:
         check_integer("mcts.simulations", self.simulations, 1, MAX_SIMULATIONS)
         if self.time_limit_s is not None:
             check_number("mcts.time_limit_s", self.time_limit_s, 0.0, low_open=True, unit="s")
-        check_number("mcts.horizon_s", self.horizon_s, 0.0, low_open=True, unit="s")
+        # at or below the clock's tolerance the root counts as already at the horizon and no leg is scored
+        check_number("mcts.horizon_s", self.horizon_s, TIME_TOL_S, low_open=True, unit="s")
         check_number("mcts.gamma", self.gamma, 0.0, 1.0, low_open=True)
         check_number("mcts.discount_period_s", self.discount_period_s, 0.0, low_open=True, unit="s")
         check_number("mcts.exploration", self.exploration, 0.0)

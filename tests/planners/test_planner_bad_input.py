@@ -233,3 +233,14 @@ def test_only_the_oracle_gets_the_truths_roi_and_a_copy_is_the_same_view():
     with pytest.raises(TypeError, match="cannot be pickled"):
         pickle.dumps(greedy.view)
     assert type(view_for(greedy, env)) is RobotView
+
+
+@pytest.mark.parametrize("horizon", ["1e-300", "1e-9", "0"])
+def test_an_mcts_horizon_within_the_clocks_tolerance_is_refused_naming_the_setting(horizon):
+    """At or below the clock's tolerance (1e-9 s) the root counts as already at the horizon, no leg is
+    scored and the episode would fail with no affordable neighbour: refused when the spec is read."""
+    from ipp_bench.planners import make_planner
+
+    with pytest.raises(ValueError, match=r"mcts\.horizon_s = .* is invalid: expected a finite number > 1e-09 \[s\]"):
+        make_planner(f"mcts:horizon_s={horizon}")
+    make_planner("mcts:horizon_s=2e-9")  # just above it: a search that looks ahead almost nothing, but runs

@@ -224,8 +224,9 @@ def test_a_signal_during_the_video_leaves_the_old_one(sig, status, tmp_path):
     proc = _demo_process(out, "--budget", "120")
     try:
         deadline = time.monotonic() + 180
-        while not ([p for p in tmp_path.iterdir() if ".tmp" in p.name and p.stat().st_size > 0]
-                   or out.read_bytes() != OLD):  # the new video is being written (beside the old one, or over it)
+        # the signal comes once the new video has been opened (beside the old one, or over it), well before
+        # the flight ends: waiting for ffmpeg's first bytes raced with a fast machine finishing the video
+        while not ([p for p in tmp_path.iterdir() if ".tmp" in p.name] or out.read_bytes() != OLD):
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
             time.sleep(0.1)
         proc.send_signal(getattr(signal, sig))

@@ -5,7 +5,7 @@ The core (config, belief, sensor, fields, roadmap, metrics, mission) needs only 
 minigrid and highway-env do (``gym.register_envs(ipp_bench)`` says so to a linter).
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 from .envs.registry import register_all as _register_all  # noqa: E402
 

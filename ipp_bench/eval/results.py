@@ -180,18 +180,23 @@ def read_results(path: str | Path) -> list[dict[str, Any]]:
     return _parse_text(Path(path).read_text(), Path(path))[0]
 
 
+def _complete_lines(text: str) -> tuple[list[str], list[str]]:
+    """The lines of a results.csv text without a torn last line (a killed append), and a note if one
+    was dropped."""
+    if text and not text.endswith("\n"):
+        cut = text.rfind("\n") + 1
+        return text[:cut].splitlines(), [f"dropped a torn last line ({len(text) - cut} bytes, from an "
+                                         "interrupted write)"]
+    return text.splitlines(), []
+
+
 def _parse_text(text: str, path: Path | str = RESULTS_CSV) -> tuple[list[dict[str, Any]], list[str]]:
     """Rows of a results.csv text, and notes on what was dropped (a torn last line).
 
     Raises:
         ValueError: another header, or ``FILE:LINE: what`` for a row that does not parse or is not finite.
     """
-    notes = []
-    if text and not text.endswith("\n"):
-        cut = text.rfind("\n") + 1
-        notes.append(f"dropped a torn last line ({len(text) - cut} bytes, from an interrupted write)")
-        text = text[:cut]
-    lines = text.splitlines()
+    lines, notes = _complete_lines(text)
     if not lines:
         return [], notes
     header = next(csv.reader([lines[0]]))
@@ -457,12 +462,7 @@ class ResultsStore:
         Raises:
             ResultsMismatchError: ``FILE:LINE: what is wrong``, the first bad row; nothing is changed.
         """
-        notes = []
-        if text and not text.endswith("\n"):
-            cut = text.rfind("\n") + 1
-            notes.append(f"dropped a torn last line ({len(text) - cut} bytes, from an interrupted write)")
-            text = text[:cut]
-        lines = text.splitlines()
+        lines, notes = _complete_lines(text)
         if not lines:
             return [], notes, []
         header = next(csv.reader([lines[0]]))

@@ -24,6 +24,7 @@ from typing import Any
 
 import torch
 
+from ipp_bench.data import write_atomically
 from ipp_bench.policies.network import MAX_MEMBERS, AttentionEnsemble, AttentionNet, NetConfig
 
 FORMAT = "ipp_bench.attention/1"
@@ -53,14 +54,13 @@ def save_checkpoint(net: AttentionNet | AttentionEnsemble, path: str | Path,
         payload["state_dict"] = _cpu_state(net)
         states = [payload["state_dict"]]
     payload["meta"] = dict(meta or {})
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    tmp.replace(path)
+    write_atomically(path, lambda tmp: torch.save(payload, tmp))
     info = {"format": FORMAT, "net_config": payload["net_config"], "meta": payload["meta"],
             "parameters": int(sum(v.numel() for state in states for v in state.values()))}
     if isinstance(net, AttentionEnsemble):
         info["members"] = len(states)
-    path.with_suffix(".json").write_text(json.dumps(info, indent=2, sort_keys=True) + "\n")
+    text = json.dumps(info, indent=2, sort_keys=True) + "\n"
+    write_atomically(path.with_suffix(".json"), lambda tmp: tmp.write_text(text))
     return path
 
 

@@ -337,6 +337,25 @@ def _check_envs(cfg: TrainArgs, check_expert_on: Any) -> None:
                              "(a warm start alone, --total-steps 0, may mix them)")
 
 
+def evaluation_task_warnings(cfg: TrainArgs) -> list[str]:
+    """One line per training task (``--task``, ``--mix``) that is one of the suite's evaluation
+    tasks (a built-in task without the ``train`` tag): training on it draws episodes from the seeds
+    its leaderboard flies, so the leaderboard would no longer score held-out episodes."""
+    from ipp_bench.envs import resolve_task
+    from ipp_bench.envs.registry import TASKS
+
+    lines = []
+    for task in dict.fromkeys(cfg.tasks):
+        spec = TASKS.get(resolve_task(task))
+        if spec is None or not spec.builtin or "train" in spec.tags:
+            continue
+        train = [t.id for t in TASKS.values() if "train" in t.tags and t.id == spec.id.replace("Eval-", "Train-")]
+        lines.append(f"warning: {spec.id} is an evaluation task (tags {', '.join(spec.tags)}): training on it "
+                     "draws episodes from the seeds its leaderboard flies, so that leaderboard no longer scores "
+                     "held-out episodes" + (f"; its training task is {train[0]}" if train else ""))
+    return lines
+
+
 def check_warm_start_seeds(cfg: TrainArgs) -> None:
     """The warm start's episodes (seeds ``seed x 1 000 003`` on) never reach the validation episodes
     (``VAL_SEED0`` on): with ``--seed 10`` they would, and the validation would score training episodes."""

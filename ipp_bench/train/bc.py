@@ -16,6 +16,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ipp_bench.data import write_atomically
 from ipp_bench.policies.network import MASKED_LOGIT, AttentionNet
 
 
@@ -144,14 +145,13 @@ def save_chunk(data: BCDataset, start: int, path: Path) -> None:
     """Samples ``start:`` of ``data`` (one round) to ``path`` (npz, written then renamed)."""
     # states of several roadmaps have different node counts: rows concatenated, with each one's count
     nf, pes = data.nf[start:], data.pes
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez(tmp, nf=np.concatenate(nf), nf_nodes=np.array([a.shape[0] for a in nf]),
-             small=np.stack(data.small[start:]), pe_id=np.asarray(data.pe_id[start:]),
-             action=np.asarray(data.action[start:]), target=np.stack(data.target[start:]),
-             ret=np.asarray(data.ret[start:], dtype=np.float64),
-             pes=np.concatenate(pes) if pes else np.zeros((0, 0), np.float32),
-             pes_nodes=np.array([p.shape[0] for p in pes], dtype=np.int64))
-    tmp.replace(path)
+    write_atomically(path, lambda tmp: np.savez(
+        tmp, nf=np.concatenate(nf), nf_nodes=np.array([a.shape[0] for a in nf]),
+        small=np.stack(data.small[start:]), pe_id=np.asarray(data.pe_id[start:]),
+        action=np.asarray(data.action[start:]), target=np.stack(data.target[start:]),
+        ret=np.asarray(data.ret[start:], dtype=np.float64),
+        pes=np.concatenate(pes) if pes else np.zeros((0, 0), np.float32),
+        pes_nodes=np.array([p.shape[0] for p in pes], dtype=np.int64)))
 
 
 def _split_rows(rows: np.ndarray, counts: np.ndarray) -> list[np.ndarray]:

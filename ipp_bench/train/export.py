@@ -13,34 +13,37 @@ from pathlib import Path
 from typing import Any
 
 from ipp_bench.policies.checkpoint import CheckpointError, save_checkpoint
+from ipp_bench.train.archive import EXPECTED, attention_state_dict, check_attention_policy, read_archive
 from ipp_bench.train.args import VAL_SEED0, TrainArgs, command_line, warm_start_seeds
 
 
 def export_zip(zip_path: str | Path, out: str | Path | None = None) -> Path:
     """Convert an SB3 MaskablePPO archive of AttentionPolicy to the shipped ``.pt`` format.
 
+    Reads the archive's JSON settings and its weights only (:mod:`ipp_bench.train.archive`): nothing
+    in it is unpickled.
+
     Raises:
         CheckpointError: the file is missing or is not an SB3 archive of an AttentionPolicy.
     """
-    import zipfile
+    from ipp_bench.policies.network import AttentionNet, NetConfig
 
     zip_path = Path(zip_path)
-    expected = "an SB3 archive (.zip) of a MaskablePPO AttentionPolicy, e.g. <run>/checkpoints/best.zip"
-    if not zip_path.is_file():
-        raise CheckpointError(f"{zip_path}: no such file; expected {expected}")
-    if not zipfile.is_zipfile(zip_path):
-        raise CheckpointError(f"{zip_path}: not a zip archive; expected {expected}")
-    from sb3_contrib import MaskablePPO
-
+    data, weights = read_archive(zip_path)
+    check_attention_policy(zip_path, data)
+    kwargs = data.get("policy_kwargs")
+    steps = data.get("num_timesteps")
+    if not isinstance(kwargs, dict) or not isinstance(kwargs.get("net_config"), dict) or type(steps) is not int:
+        raise CheckpointError(f"{zip_path}: its data has no net_config in policy_kwargs or no num_timesteps; "
+                              f"expected {EXPECTED}")
     try:
-        model = MaskablePPO.load(zip_path, device="cpu")
-    except Exception as err:  # noqa: BLE001 - any unreadable archive gets the same message
-        raise CheckpointError(f"{zip_path}: could not be read as a MaskablePPO archive "
-                              f"({type(err).__name__}); expected {expected}") from None
-    if not hasattr(model.policy, "attention_net"):
-        raise CheckpointError(f"{zip_path}: holds a {type(model.policy).__name__}, not an AttentionPolicy")
-    return save_checkpoint(model.policy.attention_net(), out or zip_path.with_suffix(".pt"),
-                           meta={"source": str(zip_path), "ppo_steps": int(model.num_timesteps)})
+        net = AttentionNet(NetConfig.from_dict(kwargs["net_config"]))
+        net.load_state_dict(attention_state_dict(zip_path, weights))
+    except (TypeError, ValueError, RuntimeError) as err:
+        raise CheckpointError(f"{zip_path}: its weights do not fit the network its net_config describes "
+                              f"({str(err).splitlines()[0]}); expected {EXPECTED}") from None
+    return save_checkpoint(net.eval(), out or zip_path.with_suffix(".pt"),
+                           meta={"source": str(zip_path), "ppo_steps": steps})
 
 
 def versions() -> dict[str, str]:

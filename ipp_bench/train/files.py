@@ -7,12 +7,13 @@ import json
 from pathlib import Path
 from typing import Any
 
+from ipp_bench.data import write_atomically
+
 
 def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file beside it: an interrupt leaves the old file."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    """Write ``text`` to ``path`` through a temporary file beside it: an interrupt or a full disk
+    leaves the old file and no temporary one (:func:`ipp_bench.data.write_atomically`)."""
+    write_atomically(path, lambda tmp: tmp.write_text(text))
 
 
 def write_json_atomic(path: Path, data: Any) -> None:

@@ -18,10 +18,12 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
+from ipp_bench.data import write_atomically
 from ipp_bench.envs.registry import make_env, parse_overrides
-from ipp_bench.policies.checkpoint import load_checkpoint, save_checkpoint
+from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from ipp_bench.train.archive import load_objects
 from ipp_bench.train.args import TrainArgs
 from ipp_bench.train.export import run_meta
 from ipp_bench.train.validation import greedy_reference, validation
@@ -56,9 +58,16 @@ def make_ppo_vec_env(cfg: TrainArgs):
 
 def atomic_save(model: Any, path: Path) -> None:
     """``model.save`` to a temporary file, then rename: an interrupt never leaves a broken archive."""
-    tmp = path.with_name(path.stem + ".tmp.zip")
-    model.save(tmp)
-    tmp.replace(path)
+    write_atomically(path, model.save)
+
+
+class AtomicCheckpoints(CheckpointCallback):
+    """SB3's numbered checkpoints (``step_<n>_steps.zip``), each written whole or not at all."""
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.save_freq == 0:
+            write_atomically(self._checkpoint_path(extension="zip"), self.model.save)
+        return True
 
 
 def _logger(run: Path):
@@ -139,12 +148,26 @@ class AfterUpdate(BaseCallback):
         self.logger.dump(n)
 
 
+def _archive_objects(cfg: TrainArgs, venv: Any) -> dict[str, Any]:
+    """What this package writes in the pickled entries of ``latest.zip``, rebuilt from the run's
+    settings, so that resuming unpickles nothing (:func:`ipp_bench.train.archive.load_objects`).
+    SB3 rebuilds the schedules and the rollout buffer from the plain entries, and the rollout state
+    (last observation, episode starts) on the reset it does after every load; the episode-statistics
+    window behind the logged ``rollout/ep_*`` means restarts empty."""
+    from ipp_bench.policies.sb3 import AttentionPolicy
+
+    return {"policy_class": AttentionPolicy, "policy_kwargs": policy_kwargs(cfg),
+            "observation_space": venv.observation_space, "action_space": venv.action_space,
+            "lr_schedule": None, "clip_range": cfg.clip_range, "clip_range_vf": None,
+            "rollout_buffer_class": None, "_last_obs": None, "_last_episode_starts": None,
+            "_last_original_obs": None, "ep_info_buffer": None, "ep_success_buffer": None}
+
+
 def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: Any, start: Path | None,
         say: Callable[[str], None]) -> None:
     """Train (or continue from ``checkpoints/latest.zip``) to ``cfg.total_steps``; ``start``: the
     weights a new PPO phase starts from. Writes ``last.pt``, and ``export.pt`` if no validation did."""
     from sb3_contrib import MaskablePPO
-    from stable_baselines3.common.callbacks import CheckpointCallback
 
     from ipp_bench.policies.sb3 import AttentionPolicy
 
@@ -153,10 +176,15 @@ def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: Any, start: Path
     (run / "checkpoints").mkdir(exist_ok=True)
     if latest.is_file():
         try:
-            model = MaskablePPO.load(latest, env=venv, device=device)
-        except ValueError as err:  # e.g. an archive whose observations do not fit this version's
+            model = MaskablePPO.load(latest, env=venv, device=device,
+                                     custom_objects=load_objects(latest, _archive_objects(cfg, venv)))
+        except CheckpointError as err:
             venv.close()
-            raise ResumeError(f"--resume: {latest} does not fit this version's training environments ({err}); "
+            raise ResumeError(f"--resume: {err}") from None
+        except (ValueError, RuntimeError) as err:  # observations or weights that do not fit this version's
+            venv.close()
+            why = " ".join(str(err).split())
+            raise ResumeError(f"--resume: {latest} does not fit this version's training environments ({why}); "
                               "finish that run with the ipp-bench version that started it, or start a new --out"
                               ) from None
         say(f"resuming PPO from {latest} at step {model.num_timesteps}")
@@ -178,8 +206,8 @@ def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: Any, start: Path
         say(f"PPO already has {model.num_timesteps} >= --total-steps {cfg.total_steps} steps")
     else:
         after = AfterUpdate(cfg, run, state, say)
-        numbered = CheckpointCallback(save_freq=max(cfg.checkpoint_every // cfg.n_envs, 1),
-                                      save_path=str(run / "checkpoints"), name_prefix="step")
+        numbered = AtomicCheckpoints(save_freq=max(cfg.checkpoint_every // cfg.n_envs, 1),
+                                     save_path=str(run / "checkpoints"), name_prefix="step")
         model.learn(total_timesteps=remaining, callback=[after, numbered], reset_num_timesteps=False,
                     progress_bar=cfg.progress)
         after.after_update()  # the last update is followed by no rollout

@@ -33,13 +33,14 @@ from typing import Any
 import torch
 
 from ipp_bench._threads import available_cpus, keep_freed_memory
-from ipp_bench.data import check_output_dir
+from ipp_bench.data import OutputWriteError, check_output_dir
 from ipp_bench.train.args import (
     RESUMABLE,
     VAL_SEED0,
     TrainArgs,
     check_args,
     command_line,
+    evaluation_task_warnings,
     load_init,
 )
 from ipp_bench.train.files import read_json, write_json_atomic
@@ -192,6 +193,8 @@ def execute(cfg: TrainArgs, run: Path, again: str = "") -> int:
         + (f", {cfg.vec_env} vec env" if cfg.total_steps else "")
         + (", freed memory kept for reuse (glibc)" if kept else ""))
     say(f"command: {command_line(cfg)}")
+    for line in evaluation_task_warnings(cfg):
+        say(line)
     tasks = val_tasks(cfg)
     say(f"validation: {cfg.eval_episodes} argmax episodes on seeds {VAL_SEED0}.. (held out of training) of "
         f"{', '.join(t for t, _ in tasks)}" + (f" every {cfg.eval_every} steps" if cfg.total_steps else "")
@@ -224,9 +227,17 @@ def execute(cfg: TrainArgs, run: Path, again: str = "") -> int:
     except ResumeError as err:
         print(f"ipp-bench train: error: {' '.join(str(err).split())}", file=sys.stderr)
         return 2
+    except OSError as err:  # a full disk, a quota: every file written so far is whole, the run resumable
+        what = str(err) if isinstance(err, OutputWriteError) else f"cannot write in {run}: {err.strerror or err}"
+        print(f"ipp-bench train: error: {what}; make room, then continue with: "
+              f"{again or f'ipp-bench train --out {shlex.quote(str(run))} --resume'}", file=sys.stderr)
+        return 1
     finally:
         signal.signal(signal.SIGTERM, old)
-        state.save(run)
+        try:
+            state.save(run)
+        except OSError:
+            pass  # the state.json written last stays: a resume repeats at most the unsaved step
     best = f"{state.best_score:.2f}" if state.best_step is not None else "none"
     say(f"done: {state.ppo_steps} PPO steps, best validation {best} at step {state.best_step}; "
         f"policy in {run / 'export.pt'}")

@@ -28,7 +28,7 @@ def _train(*args, check=True):
 
 
 @pytest.mark.slow  # a real training subprocess: 10-25 s each on 2 cores
-def test_tiny_training_run_then_resume(tmp_path):
+def test_tiny_training_run_then_resume(tmp_path, poison):
     run = tmp_path / "run"
     _train(*TINY, "--total-steps", "64", "--out", str(run))
     state = json.loads((run / "state.json").read_text())
@@ -46,9 +46,12 @@ def test_tiny_training_run_then_resume(tmp_path):
     # Refuses to overwrite, refuses to change the recipe on resume, continues from step 64.
     assert _train(*TINY, "--total-steps", "64", "--out", str(run), check=False).returncode == 2
     assert _train("--out", str(run), "--resume", "--n-epochs", "3", check=False).returncode == 2
+    # latest.zip's pickled policy class is never unpickled: the resume uses the package's own.
+    poison(run / "checkpoints" / "latest.zip", "policy_class", tmp_path / "ran")
     # Where the environments step is not part of the recipe: the resume steps them in this process.
     proc = _train("--out", str(run), "--resume", "--total-steps", "128", "--no-progress", "--vec-env", "dummy")
     assert "resuming PPO" in proc.stdout and "at step 64" in proc.stdout and "dummy vec env" in proc.stdout
+    assert not (tmp_path / "ran").exists()
     state = json.loads((run / "state.json").read_text())
     assert state["ppo_steps"] == 128
     steps_after = _logged_steps(run)
@@ -391,3 +394,42 @@ def test_a_warm_start_alone_may_mix_map_sizes_and_weigh_a_task_twice():
         check_args(dataclasses.replace(cfg, total_steps=32))
     with pytest.raises(ValueError, match="PPO holds one roadmap"):
         check_args(dataclasses.replace(cfg, mix=["ipp_bench/Grid20Train-v1"], total_steps=32))
+
+
+def test_training_on_an_evaluation_task_warns_and_names_its_training_task(tmp_path, capsys):
+    from ipp_bench.train.args import TrainArgs, evaluation_task_warnings
+    from ipp_bench.train.command import main
+
+    assert evaluation_task_warnings(TrainArgs(task="ipp_bench/Grid15Train-v1", mix=["Hotspots15Train-v2"])) == []
+    assert evaluation_task_warnings(TrainArgs(task="ipp_bench/Grid15-v0")) == []
+    (line,) = evaluation_task_warnings(TrainArgs(task="ipp_bench/Grid15Train-v1", mix=["Hotspots15Eval-v2"]))
+    assert line.startswith("warning: ipp_bench/Hotspots15Eval-v2 is an evaluation task")
+    assert line.endswith("its training task is ipp_bench/Hotspots15Train-v2")
+    run = tmp_path / "run"
+    args = [a if a != "ipp_bench/Grid15-v0" else "ipp_bench/Grid15Eval-v1" for a in TINY]
+    assert main([*args, "--total-steps", "0", "--out", str(run)]) == 0
+    out = capsys.readouterr().out
+    assert "warning: ipp_bench/Grid15Eval-v1 is an evaluation task" in out
+    assert "warning: ipp_bench/Grid15Eval-v1" in (run / "train.log").read_text()
+
+
+@pytest.mark.slow  # two real training subprocesses: about 20 s on 2 cores
+def test_a_write_that_fails_midway_is_one_line_leaves_no_temporary_file_and_resumes(tmp_path):
+    """Files over 200 kB cannot be written (RLIMIT_FSIZE, as on a full disk or a quota): the run stops
+    with one line naming the file, leaves every file whole and none temporary, and resumes to the end."""
+    import resource
+    import signal
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails (EFBIG) instead of killing
+        resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
+
+    run = tmp_path / "run"
+    cmd = [sys.executable, "-m", "ipp_bench.cli", "train", *TINY, "--total-steps", "96", "--out", str(run)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, preexec_fn=limit, check=False)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+    assert "cannot write" in proc.stderr and f"--out {run} --resume" in proc.stderr
+    assert not [p for p in run.rglob("*") if "tmp" in p.name]
+    json.loads((run / "state.json").read_text())
+    _train("--out", str(run), "--resume")
+    assert json.loads((run / "state.json").read_text())["ppo_steps"] == 96

@@ -17,13 +17,13 @@ import numpy as np
 from ipp_bench._threads import limit_blas_threads
 from ipp_bench.envs import tagged
 from ipp_bench.eval.runner import run_episode
-from ipp_bench.planners import planner_names
+from ipp_bench.planners import is_team_planner, planner_names
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--tasks", nargs="+", default=tagged("benchmark"))
-    parser.add_argument("--planners", nargs="+", default=[p for p in planner_names()])
+    parser.add_argument("--planners", nargs="+", default=[p for p in planner_names() if not is_team_planner(p)])
     parser.add_argument("--episodes", type=int, default=2)
     parser.add_argument("--seed", type=int, default=1000)
     args = parser.parse_args()

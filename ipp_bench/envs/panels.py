@@ -64,9 +64,9 @@ def render_mission(mission, size: int = 240) -> np.ndarray:
         _panel(mission.belief.mean.reshape(shape), px, 0.0, 1.0),
         _panel(std, px, 0.0, prior_std),
     ]
-    path = np.asarray(mission.path, dtype=float)
-    for p in panels[1:]:
-        _draw_path(p, path, g.resolution, px, mission.budget_s)
+    for path in getattr(mission, "paths", None) or [mission.path]:  # a team: one path per UAV
+        for p in panels[1:]:
+            _draw_path(p, np.asarray(path, dtype=float), g.resolution, px, mission.budget_s)
     gap = np.full((panels[0].shape[0], 4, 3), 255, np.uint8)
     row = [panels[0]]
     for p in panels[1:]:

@@ -25,6 +25,7 @@ from gymnasium.envs.registration import load_env_creator
 
 from ..config import IPPConfig, quoted
 from ..data import data_dir
+from ..team import TeamConfig
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -41,6 +42,8 @@ class TaskSpec:
     Attributes:
         builtin: one of the suite's ``tasks/`` files (False: a user's file, :func:`load_task`).
         sim: the file's ``[sim]`` table (the MuJoCo deployment's settings), as read.
+        team: the file's ``[team]`` table (a team task's UAVs, :class:`~ipp_bench.team.TeamConfig`),
+            validated; empty for a single-UAV task.
     """
 
     id: str
@@ -51,6 +54,7 @@ class TaskSpec:
     source: str
     builtin: bool = True
     sim: dict[str, Any] = field(default_factory=dict)
+    team: dict[str, Any] = field(default_factory=dict)
 
 
 class TaskFileError(ValueError):
@@ -67,7 +71,7 @@ class TaskFileWarning(UserWarning):
 
 
 #: the keys a task file may have at its top level
-TASK_FILE_KEYS = ("id", "entry_point", "tags", "description", "config", "sim")
+TASK_FILE_KEYS = ("id", "entry_point", "tags", "description", "config", "sim", "team")
 _ID = re.compile(rf"^{NAMESPACE}/[A-Za-z][A-Za-z0-9_]*-v[0-9]+$")
 
 
@@ -147,12 +151,24 @@ def load_task_file(path, builtin: bool = False) -> TaskSpec:
         m = re.match(r"(\w+)\.(\w+) = ", str(err)) or re.search(r"unknown fields \['(\w+)'", str(err))
         line = _line_of(text, m.group(m.lastindex)) if m else None
         raise TaskFileError(path, str(err), line) from None
-    return TaskSpec(task_id, entry, tuple(tags), description.strip(), config, str(path), builtin, dict(sim))
+    team = data.get("team", {})
+    if team or entry == TEAM_ENTRY_POINT:
+        try:
+            TeamConfig.from_dict(team).check(config)
+        except ValueError as err:
+            raise TaskFileError(path, str(err), _line_of(text, "team")) from None
+        if entry != TEAM_ENTRY_POINT:
+            raise TaskFileError(path, f"a [team] table needs entry_point = {TEAM_ENTRY_POINT!r}",
+                                _line_of(text, "entry_point"))
+    return TaskSpec(task_id, entry, tuple(tags), description.strip(), config, str(path), builtin, dict(sim),
+                    dict(team))
 
 
 #: the environment classes of the suite, named where an entry point is refused
 SUITE_ENTRY_POINTS = ("ipp_bench.envs.graph:GraphIPPEnv", "ipp_bench.envs.twin:TwinIPPEnv",
-                      "ipp_bench.sim.env:MuJoCoIPPEnv")
+                      "ipp_bench.sim.env:MuJoCoIPPEnv", "ipp_bench.envs.team:TeamGraphEnv")
+#: the team tasks' environment: a PettingZoo AEC env, made by :func:`make_env`, not registered with gymnasium
+TEAM_ENTRY_POINT = "ipp_bench.envs.team:TeamGraphEnv"
 _ENTRY_POINT = re.compile(r"^ipp_bench(\.[A-Za-z_][A-Za-z0-9_]*)+:[A-Za-z_][A-Za-z0-9_]*$")
 
 
@@ -302,7 +318,7 @@ def register_all() -> None:
 
 
 def _register(spec: TaskSpec) -> None:
-    if spec.id in gym.registry:
+    if spec.id in gym.registry or spec.entry_point == TEAM_ENTRY_POINT:  # a team task is no gymnasium env
         return
     kwargs = {"env_class": spec.entry_point, "config": spec.config, "task_id": spec.id}
     if spec.sim:  # a deployment task's [sim] table, validated by ipp_bench.sim (never imported here)
@@ -358,12 +374,38 @@ def make_env(task: str, *, render: bool = False, **overrides: Any):
         ValueError: unknown task, or an override that names no field or has a bad value.
     """
     task_id = resolve_task(task)
+    spec = TASKS.get(task_id)
+    if spec is not None and spec.entry_point == TEAM_ENTRY_POINT:
+        return make_team_env(spec, render=render, **overrides)
     with warnings.catch_warnings():  # gymnasium's own notice (in colour, once per process and task): ours instead
         warnings.filterwarnings("ignore", message=r".* is out of date\. You should consider upgrading",
                                 category=DeprecationWarning)
         env = gym.make(task_id, render_mode="rgb_array" if render else None, **overrides)
     warn_if_outdated(task_id)
     return env.unwrapped  # the tasks are registered without gymnasium's checker and wrappers
+
+
+def make_team_env(spec: TaskSpec, *, render: bool = False, **overrides: Any):
+    """A team task's :class:`~ipp_bench.envs.team.TeamGraphEnv`; ``overrides``: config fields by name,
+    and ``team={...}`` for fields of its ``[team]`` table."""
+    from .team import TeamGraphEnv
+
+    team = dict(spec.team)
+    overrides = dict(overrides)
+    extra = overrides.pop("team", None)
+    if extra is not None:
+        if not isinstance(extra, dict):
+            raise ValueError(f"team = {extra!r} is invalid: expected a dict of [team] fields, e.g. "
+                             "team={\"size\": 4}")
+        team.update(extra)
+    config = task_config(spec.id, overrides)
+    return TeamGraphEnv(config, team=team, render_mode="rgb_array" if render else None, task_id=spec.id)
+
+
+def is_team_task(task: str) -> bool:
+    """Whether ``task`` (an id or a task file) is a team task (several UAVs, one belief)."""
+    spec = TASKS.get(resolve_task(task))
+    return spec is not None and spec.entry_point == TEAM_ENTRY_POINT
 
 
 class OutdatedTaskWarning(FutureWarning):
@@ -411,6 +453,8 @@ def task_config(task_id: str, overrides: dict[str, Any] | None = None) -> IPPCon
     """
     spec = task_spec(task_id)
     config = spec.config
+    if overrides and spec.entry_point == TEAM_ENTRY_POINT and "team" in overrides:  # the [team] table's own
+        overrides = {k: v for k, v in overrides.items() if k != "team"}
     if not overrides:
         return config
     sim = sim_fields(spec)

@@ -60,25 +60,31 @@ def save_episode_figure(mission, path: str | Path, title: str = "") -> Path:
     res = g.resolution
     xs, ys = cell_centre(np.arange(g.cols), res), cell_centre(np.arange(g.rows), res)
     axes[0].contour(xs, ys, mission.truth >= cfg.mission.mu_th, levels=[0.5], colors="white", linewidths=1.2)
-    way = np.asarray(mission.path, dtype=float)  # (t, x, y, z) per waypoint
     ax = axes[2]
-    if len(way) > 1:
-        segments = np.stack([way[:-1, 1:3], way[1:, 1:3]], axis=1)
-        lines = LineCollection(segments, cmap=colormaps["plasma"], linewidths=2.2)
-        lines.set_array(way[1:, 0])
-        lines.set_clim(0.0, mission.budget_s)
-        ax.add_collection(lines)
-        fig.colorbar(lines, ax=ax, fraction=0.046, pad=0.08, label="mission time [s] (path colour)")
     handles = []
     altitudes = cfg.graph.altitudes
     markers = ["o", "^", "s", "D"]
-    for i, alt in enumerate(altitudes):
-        level = np.abs(way[:, 3][:, None] - np.asarray(altitudes)[None, :]).argmin(axis=1) == i
-        m = markers[i % len(markers)]
-        ax.scatter(way[level, 1], way[level, 2], marker=m, s=18, facecolor="none", edgecolor="cyan", linewidths=1.0)
-        handles.append(Line2D([], [], ls="", marker=m, mfc="none", mec="cyan", label=f"waypoint at ~{alt:g} m"))
-    ax.plot(*way[0, 1:3], "o", ms=8, mfc="lime", mec="black")
-    ax.plot(*way[-1, 1:3], "X", ms=9, mfc="red", mec="black")
+    paths = getattr(mission, "paths", None) or [mission.path]  # a team: one path per UAV
+    for k, flown in enumerate(paths):
+        way = np.asarray(flown, dtype=float)  # (t, x, y, z) per waypoint
+        if len(way) > 1:
+            segments = np.stack([way[:-1, 1:3], way[1:, 1:3]], axis=1)
+            lines = LineCollection(segments, cmap=colormaps["plasma"], linewidths=2.2)
+            lines.set_array(way[1:, 0])
+            lines.set_clim(0.0, mission.budget_s)
+            ax.add_collection(lines)
+            if k == 0:
+                fig.colorbar(lines, ax=ax, fraction=0.046, pad=0.08, label="mission time [s] (path colour)")
+        for i, alt in enumerate(altitudes):
+            level = np.abs(way[:, 3][:, None] - np.asarray(altitudes)[None, :]).argmin(axis=1) == i
+            m = markers[i % len(markers)]
+            ax.scatter(way[level, 1], way[level, 2], marker=m, s=18, facecolor="none", edgecolor="cyan",
+                       linewidths=1.0)
+            if k == 0:
+                handles.append(Line2D([], [], ls="", marker=m, mfc="none", mec="cyan",
+                                      label=f"waypoint at ~{alt:g} m"))
+        ax.plot(*way[0, 1:3], "o", ms=8, mfc="lime", mec="black")
+        ax.plot(*way[-1, 1:3], "X", ms=9, mfc="red", mec="black")
     handles += [Line2D([], [], ls="", marker="o", mfc="lime", mec="black", label="start"),
                 Line2D([], [], ls="", marker="X", mfc="red", mec="black", label="end")]
     ax.legend(handles=handles, fontsize=7, loc="upper right", framealpha=0.8)

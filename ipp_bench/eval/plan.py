@@ -27,7 +27,7 @@ import numpy as np
 
 from ..config import IPPConfig, field_owners
 from ..envs import tagged, task_config, task_spec
-from ..envs.registry import resolve_task
+from ..envs.registry import is_team_task, resolve_task
 from ..planners import make_config, make_planner, parse_spec, planner_names
 
 SEED_SCHEME = "SeedSequence(seed).spawn(episodes)[i] -> uint31"
@@ -235,8 +235,10 @@ def planner_fingerprint(planner: Any) -> dict[str, str]:
     return dict(fn()) if callable(fn) else {}
 
 
-def default_planners(log: Callable[[str], None] = print) -> list[str]:
-    """Every registered planner that can be built here; the others are left out with a note.
+def default_planners(log: Callable[[str], None] = print, team: bool = False) -> list[str]:
+    """Every registered planner that can be built here; the others are left out with a note. The
+    team-aware planners (``team-greedy``, ...) only where ``team`` (every task a team task): any other
+    planner flies each UAV of a team on its own.
 
     A planner whose module, extra (torch, pycma) or checkpoint is missing, or a plugin that fails
     to build (no ``Config``, an exception in its constructor), cannot run; that is fine for the
@@ -245,9 +247,11 @@ def default_planners(log: Callable[[str], None] = print) -> list[str]:
     names = []
     for name in planner_names():
         try:
-            make_planner(name)
+            planner = make_planner(name)
         except Exception as err:  # any broken planner (a plugin's bug too) is left out, with its reason
             log(f"note: leaving planner {name!r} out of the default list: {type(err).__name__}: {err}")
+            continue
+        if getattr(planner, "team", False) and not team:
             continue
         names.append(name)
     return names
@@ -377,7 +381,8 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
         raise ValueError(f"the planner list {list(planners)!r} names no planner: pass planner specs "
                          "(e.g. --planners random greedy), or leave --planners out for every planner")
     explicit = planners is not None
-    specs = list(planners) if planners is not None else default_planners(log)
+    specs = list(planners) if planners is not None else default_planners(
+        log, team=all(is_team_task(t) for t in task_ids))
     if not specs:
         raise ValueError("no planner can be built: pass --planners")
     resolved, fingerprints, quick_changed, built = [], {}, quick and episodes is None, {}
@@ -427,7 +432,7 @@ def check_episode_starts(tasks: Sequence[str], planners: dict[str, Any], seed: i
             refuses the task (an attention checkpoint made for another ``pe_dim``), ...
     """
     from ..envs import make_env
-    from ..planners.episode import start_episode
+    from ..planners.episode import is_team_env, start_episode
 
     for task in tasks:
         env = make_env(task, **env_overrides)
@@ -437,8 +442,8 @@ def check_episode_starts(tasks: Sequence[str], planners: dict[str, Any], seed: i
             except ValueError as err:
                 raise ValueError(f"task {task}: {err}") from None
             for spec, planner in planners.items():
-                try:
-                    start_episode(env, planner, seed)
+                try:  # a team task builds one planner per UAV from the spec
+                    start_episode(env, spec if is_team_env(env) else planner, seed)
                 except ValueError as err:
                     raise ValueError(f"task {task}, planner {spec}: {err}") from None
         finally:

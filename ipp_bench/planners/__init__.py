@@ -35,7 +35,7 @@ from importlib.metadata import entry_points
 from types import MappingProxyType
 from typing import Any
 
-from .base import ContinuousPlanner, GraphPlanner, Planner, RobotView, TruthView
+from .base import ContinuousPlanner, GraphPlanner, Planner, RobotView, TeamRobotView, TeamTruthView, TruthView
 
 #: the suite's planners: name -> "module:Class"; the class has a ``Config`` dataclass attribute
 BUILT_IN: Mapping[str, str] = MappingProxyType({
@@ -46,10 +46,13 @@ BUILT_IN: Mapping[str, str] = MappingProxyType({
     "cmaes": "ipp_bench.planners.cmaes:CMAESPlanner",
     "attention": "ipp_bench.policies.planner:AttentionPlanner",
     "oracle": "ipp_bench.planners.oracle:OraclePlanner",
+    "team-greedy": "ipp_bench.planners.team:TeamGreedyPlanner",
+    "team-coverage": "ipp_bench.planners.team:TeamCoveragePlanner",
+    "team-oracle": "ipp_bench.planners.team:TeamOraclePlanner",
 })
 #: reference planners: they read the true ROI (a :class:`~ipp_bench.planners.base.TruthView`) to
 #: show the room above the planners that cannot; reports show them apart, never as the best
-REFERENCE_PLANNERS: tuple[str, ...] = ("oracle",)
+REFERENCE_PLANNERS: tuple[str, ...] = ("oracle", "team-oracle")
 ENTRY_POINT_GROUP = "ipp_bench.planners"
 
 
@@ -247,6 +250,11 @@ def planner_class(name: str, registry: PlannerRegistry | None = None) -> type:
     return _registry(registry).planner_class(name)
 
 
+def is_team_planner(name: str, registry: PlannerRegistry | None = None) -> bool:
+    """Whether planner ``name`` plans for a UAV of a team (``team-greedy``, ...: a team task only)."""
+    return bool(getattr(planner_class(name, registry), "team", False))
+
+
 def split_specs(items: typing.Iterable[str]) -> list[str]:
     """Planner specs from command-line words, where a word may hold several, comma-separated:
     ``["random,coverage", "mcts:simulations=8,exploration=0.5,greedy"]`` ->
@@ -323,8 +331,12 @@ def view_for(planner: Any, env: Any) -> RobotView:
             :data:`REFERENCE_PLANNERS` as :data:`BUILT_IN` names it (neither a plugin nor a planner of a
             local registry can grant itself the truth).
     """
+    team = getattr(env, "team_env", None) is not None  # a UAV of a team (ipp_bench.envs.team.UAVEnv)
+    if getattr(planner, "team", False) and not team:
+        raise ValueError(f"planner {getattr(planner, 'name', '?')!r} plans for a UAV of a team: fly it on a team "
+                         "task (tag team, e.g. ipp_bench/Hotspots30Team2Eval-v2)")
     if not getattr(planner, "reads_truth", False):
-        return RobotView(env)
+        return TeamRobotView(env) if team else RobotView(env)
     name = getattr(planner, "name", "?")
     target = BUILT_IN.get(name, "")
     module, _, cls = target.partition(":")
@@ -333,7 +345,7 @@ def view_for(planner: Any, env: Any) -> RobotView:
     if not own:
         raise ValueError(f"planner {name!r} sets reads_truth, but only the suite's reference planners "
                          f"{list(REFERENCE_PLANNERS)} may read the ground truth")
-    return TruthView(env)
+    return TeamTruthView(env) if team else TruthView(env)
 
 
 def make_planner(spec: str, *, registry: PlannerRegistry | None = None, **overrides: Any):
@@ -344,5 +356,5 @@ def make_planner(spec: str, *, registry: PlannerRegistry | None = None, **overri
 
 __all__ = ["Planner", "GraphPlanner", "ContinuousPlanner", "RobotView", "TruthView", "BUILT_IN", "REGISTRY",
            "REFERENCE_PLANNERS", "ENTRY_POINT_GROUP", "PlannerRegistry", "PlannerError",
-           "what_raised", "register", "is_reference", "view_for",
+           "what_raised", "register", "is_reference", "is_team_planner", "view_for",
            "planner_names", "planner_class", "split_specs", "parse_spec", "make_config", "make_planner"]

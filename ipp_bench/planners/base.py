@@ -232,6 +232,56 @@ class TruthView(RobotView):
         return _ENVS[self].mission.eval_roi.copy()
 
 
+class TeamRobotView(RobotView):
+    """A UAV's view in a team episode (:class:`~ipp_bench.envs.team.TeamGraphEnv`): the robot's view of
+    its own UAV (position, clock, budget, mask) on the team's shared belief, plus what a team shares
+    by radio: where its teammates are bound and the read-outs their committed legs will take (where
+    and how noisy, never the values)."""
+
+    __slots__ = ()
+
+    @property
+    def uav(self) -> int:
+        """This UAV's index in the team (0-based)."""
+        return _ENVS[self].index
+
+    @property
+    def team_size(self) -> int:
+        return _ENVS[self].team_env.team.size
+
+    def teammate_nodes(self) -> list[int]:
+        """The roadmap nodes the other UAVs stand on or are flying to."""
+        team = _ENVS[self].team_env
+        return [seat.current_node for seat in team.seats if seat.index != self.uav]
+
+    def teammates_pending(self) -> list[Observation]:
+        """The read-outs the other UAVs' committed legs take after this UAV's clock (not yet in the
+        belief): their observations only, in time order."""
+        return _ENVS[self].team_env.mission.pending_observations(exclude=self.uav)
+
+    def belief_ahead(self) -> GPBelief:
+        """The belief with the teammates' pending read-outs fused into its covariance in advance (the
+        mean is today's): the covariance does not depend on the values read, so this is exactly the
+        covariance the belief will have once they are taken. The live belief where none are pending."""
+        self.require_dense_belief("a team-aware planner", "the teammates' read-outs are fused into the full "
+                                  "covariance")
+        belief = self.belief
+        pending = self.teammates_pending()
+        if not pending:
+            return belief
+        ahead = belief.copy()
+        cells, W, var = stack(pending)
+        ahead.update_local(cells, W, W @ ahead.mean[cells], var)  # values at the predicted mean: no innovation
+        ahead.mean = belief.mean.copy()
+        return ahead
+
+
+class TeamTruthView(TeamRobotView, TruthView):
+    """A UAV's team view plus the evaluation ROI, for the suite's team reference planner."""
+
+    __slots__ = ()
+
+
 @runtime_checkable
 class Planner(Protocol):
     """One decision at a time.

@@ -8,11 +8,14 @@ logging). The result is one :class:`EpisodeResult`.
 
 A roadmap planner (``kind = "graph"``) acts on the env's observation and the env steps; a
 continuous planner (``kind = "continuous"``) gives a waypoint that the mission flies. The episode
-ends when no neighbour is affordable (graph) or the planner returns None (continuous).
+ends when no neighbour is affordable (graph) or the planner returns None (continuous). A team
+task's env (:class:`~ipp_bench.envs.team.TeamGraphEnv`) goes to :func:`fly_team_episode`: one planner
+per UAV, each deciding when its UAV's leg ends.
 """
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -87,6 +90,11 @@ class EpisodeResult:
         return out
 
 
+def is_team_env(env) -> bool:
+    """Whether ``env`` is a team task's env (:class:`~ipp_bench.envs.team.TeamGraphEnv`): one planner per UAV."""
+    return getattr(env, "seats", None) is not None and getattr(env, "possible_agents", None) is not None
+
+
 def start_episode(env, planner, seed: int, options: dict | None = None, registry: PlannerRegistry | None = None):
     """Reset ``env`` and ``planner`` for episode ``seed``, as :func:`fly_episode` does before its
     first decision; returns (planner, first observation). A spec is built from ``registry`` (default:
@@ -96,6 +104,8 @@ def start_episode(env, planner, seed: int, options: dict | None = None, registry
     episode's start refuses (a budget that pays for no first move, a checkpoint whose inputs do not
     fit the task) is refused before anything is written.
     """
+    if is_team_env(env):
+        return start_team_episode(env, planner, seed, options, registry), None
     agent = make_planner(planner, registry=registry) if isinstance(planner, str) else planner
     obs, _ = env.reset(seed=int(seed), options=options)
     view = view_for(agent, env)
@@ -127,7 +137,9 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
     """Fly one episode of ``planner`` on ``env``.
 
     Args:
-        env: an unwrapped :class:`~ipp_bench.envs.graph.GraphIPPEnv` (or subclass).
+        env: an unwrapped :class:`~ipp_bench.envs.graph.GraphIPPEnv` (or subclass), or a team task's
+            :class:`~ipp_bench.envs.team.TeamGraphEnv` (:func:`~ipp_bench.planners.team.fly_team_episode`:
+            one planner per UAV, built from the spec).
         planner: a planner spec (``"mcts:simulations=50"``) or a planner object.
         seed: episode seed: field, start and sensor noise (every planner meets the same episode),
             and the planner's own generator.
@@ -142,6 +154,9 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
             called ``sys.exit`` in a decision.
         PlannerError: the planner's ``reset`` raised (a ValueError it raises passes as it is).
     """
+    if is_team_env(env):
+        return fly_team_episode(env, planner, seed, options=options, on_reset=on_reset, on_decision=on_decision,
+                                registry=registry)
     agent, obs = start_episode(env, planner, seed, options, registry)
     label = _label(planner, agent)
     if on_reset is not None:
@@ -178,3 +193,89 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
     mission = env.mission
     return EpisodeResult(getattr(env, "task_id", None), label, int(seed), mission.report(), len(times), times,
                          wall, mission.metrics(), float(total), list(mission.history))
+
+
+def start_team_episode(env, planner: str | Any, seed: int, options: dict | None = None,
+                       registry: PlannerRegistry | None = None) -> list:
+    """Reset the team env for episode ``seed`` and one planner per UAV built from ``planner`` (a spec, or
+    a planner object not yet reset, copied per UAV); UAV i's generator is seeded with ``seed + i``.
+    Returns the planners. As :func:`~ipp_bench.planners.episode.start_episode`, a leaderboard calls it
+    before the first episode."""
+    label = planner if isinstance(planner, str) else getattr(planner, "name", type(planner).__name__)
+    env.reset(seed=int(seed), options=options)
+    agents = []
+    for i, seat in enumerate(env.seats):
+        agent = make_planner(planner, registry=registry) if isinstance(planner, str) else copy.deepcopy(planner)
+        view = view_for(agent, seat)
+        try:
+            agent.reset(view, int(seed) + i)
+        except (ValueError, ImportError):
+            raise
+        except (Exception, SystemExit) as err:
+            raise PlannerError(f"planner {label!r}: its reset raised {what_raised(err)}") from err
+        agents.append(agent)
+    return agents
+
+
+def fly_team_episode(env, planner: str | Any, seed: int, *, options: dict | None = None,
+                     on_reset: Callable[[Any], None] | None = None,
+                     on_decision: Callable[[Decision], None] | None = None,
+                     registry: PlannerRegistry | None = None) -> EpisodeResult:
+    """Fly one episode of a team task with one planner per UAV, each built from the spec ``planner``.
+
+    Args:
+        env: a :class:`~ipp_bench.envs.team.TeamGraphEnv`.
+        planner: a planner spec (or a planner object not yet reset); every UAV gets its own planner.
+        seed: the episode seed (field, starts, camera noise); UAV i's planner generator gets seed + i.
+        options: ``env.reset`` options (``{"start_nodes": [...]}``).
+        on_reset: called with the env after the reset, before the first decision.
+        on_decision: called with every :class:`~ipp_bench.planners.episode.Decision` (its ``action`` is
+            ``(uav, neighbour index or waypoint)``), after it was carried out.
+        registry: where the spec's planner is looked up (default: the suite's).
+
+    Returns:
+        The team's :class:`~ipp_bench.planners.episode.EpisodeResult`: the shared belief's report, every
+        UAV's decisions, ``total_reward`` the team reward's sum.
+
+    Raises:
+        RuntimeError: the planners made :data:`~ipp_bench.limits.MAX_DECISIONS` decisions per UAV without
+            ending the episode, or one called ``sys.exit``.
+        PlannerError: a planner's ``reset`` raised (a ValueError it raises passes as it is).
+    """
+    agents = start_team_episode(env, planner, seed, options, registry)
+    label = planner if isinstance(planner, str) else agents[0].name
+    if on_reset is not None:
+        on_reset(env)
+    times: list[float] = []
+    total = 0.0
+    t_start = time.perf_counter()
+    for name in env.agent_iter(MAX_DECISIONS * env.team.size):
+        obs, _, terminated, truncated, _ = env.last()
+        if terminated or truncated:
+            env.step(None)
+            continue
+        uav = env.uav_index(name)
+        agent = agents[uav]
+        t0 = time.perf_counter()
+        if agent.kind == "graph":
+            action = _decide(agent.act, label, obs)
+            times.append(time.perf_counter() - t0)
+            env.step(action)
+        else:
+            action = _decide(agent.next_waypoint, label)
+            times.append(time.perf_counter() - t0)
+            env.retire() if action is None else env.fly_waypoint(action)
+        reward = env.rewards.get(name, 0.0)
+        total += reward
+        if on_decision is not None:
+            on_decision(Decision(len(times) - 1, obs if agent.kind == "graph" else None, (uav, action),
+                                 float(reward), times[-1]))
+    if env.agents:
+        raise RuntimeError(f"planner {label!r} made {MAX_DECISIONS} decisions per UAV without ending the team "
+                           "episode")
+    wall = time.perf_counter() - t_start
+    mission = env.mission
+    return EpisodeResult(env.task_id, label, int(seed), mission.report(), len(times), times, wall,
+                         mission.metrics(), float(total), list(mission.history))
+
+

@@ -51,12 +51,13 @@ def leg_batch(view, node: int) -> LegBatch | list:
     return batch
 
 
-def greedy_scores(view, node: int, roi: np.ndarray | None = None) -> np.ndarray:
+def greedy_scores(view, node: int, roi: np.ndarray | None = None, belief=None) -> np.ndarray:
     """(k,) predicted ROI trace reduction per second of flight of the leg to each neighbour of ``node``
     (from the view's position), unmasked: greedy's score. The ROI is the belief's (``roi=None``) or
-    the mask given (the ``oracle`` reference passes the true one)."""
+    the mask given (the ``oracle`` reference passes the true one); the covariance the view's belief's
+    or ``belief``'s (a team-aware planner's, with its teammates' committed read-outs fused)."""
     roi = view.belief_roi() if roi is None else roi
-    gains = view.belief.trace_reductions(leg_batch(view, node), roi)
+    gains = (view.belief if belief is None else belief).trace_reductions(leg_batch(view, node), roi)
     return gains / view.neighbour_durations(node, view.position)
 
 
@@ -70,9 +71,13 @@ class GreedyPlanner(GraphPlanner):
         """The ROI the score is computed on: None, the belief's (``mu + beta sigma >= mu_th``)."""
         return None
 
+    def belief(self):
+        """The belief whose covariance the legs are scored on: the view's."""
+        return self.view.belief
+
     def scores(self, obs) -> np.ndarray:
         """Predicted ROI trace reduction per second for each neighbour (-inf where masked)."""
-        scores = greedy_scores(self.view, int(obs["current_node"][0]), self.roi())
+        scores = greedy_scores(self.view, int(obs["current_node"][0]), self.roi(), self.belief())
         return np.where(obs["action_mask"].astype(bool), scores, -np.inf)
 
     def act(self, obs):

@@ -72,4 +72,4 @@ class OraclePlanner(GreedyPlanner):
         if self._looks is None:
             return first_best(scores)
         return far_move(self.view, obs, scores, self._targets,
-                        lambda: self._looks.trace_reductions(self.view.belief.cov, self._roi))
+                        lambda: self._looks.trace_reductions(self.belief().cov, self._roi))

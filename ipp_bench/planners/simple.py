@@ -74,11 +74,14 @@ class CoveragePlanner(ContinuousPlanner):
                 invalid("coverage.altitude", alt, f"an altitude in [{low:g}, {high:g}] m (the task's flight "
                         "envelope, graph.altitudes)")
         half = view.sensor.footprint_side(alt) / 2.0
-        width, height = cfg.grid.size_m
+        width, _ = cfg.grid.size_m
+        y_low, y_high = self.band(view)
+        height = y_high - y_low
         half_x, half_y = min(half, width / 2), min(half, height / 2)
         step = 2 * half * (1.0 - self.settings.overlap)
         n_lanes = max(1, math.ceil((height - 2 * half_y) / step - 1e-9) + 1)
-        ys = np.linspace(half_y, height - half_y, n_lanes) if n_lanes > 1 else np.array([height / 2])
+        ys = (np.linspace(y_low + half_y, y_high - half_y, n_lanes) if n_lanes > 1
+              else np.array([(y_low + y_high) / 2]))
         xs = (half_x, width - half_x)
         start = view.position
         if abs(start[1] - ys[-1]) < abs(start[1] - ys[0]):
@@ -94,6 +97,10 @@ class CoveragePlanner(ContinuousPlanner):
         self._single = bool(np.all(np.linalg.norm(pattern - pattern[0], axis=1) <= MIN_LEG_M))
         self._targets = self._cycle(pattern)
         self._target = next(self._targets)
+
+    def band(self, view) -> tuple[float, float]:
+        """[m] the stretch of y the lanes cover: the whole map."""
+        return 0.0, view.config.grid.size_m[1]
 
     @staticmethod
     def _cycle(pattern):

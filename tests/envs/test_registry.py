@@ -36,10 +36,12 @@ def test_v2_tasks_are_sparse_hotspots_with_a_fitted_mean():
         assert train.replace(episode_seeds=cfg.mission.episode_seeds) == cfg  # the same task on other seeds
 
 
-def test_registration_is_idempotent():
-    before = {k: gym.registry[k] for k in envs.TASKS}
+def test_registration_is_idempotent_and_leaves_the_team_tasks_to_pettingzoo():
+    gym_tasks = [k for k in envs.TASKS if "team" not in envs.TASKS[k].tags]
+    before = {k: gym.registry[k] for k in gym_tasks}
     envs.register_all()
-    assert {k: gym.registry[k] for k in envs.TASKS} == before
+    assert {k: gym.registry[k] for k in gym_tasks} == before
+    assert not [k for k in envs.TASKS if "team" in envs.TASKS[k].tags and k in gym.registry]
 
 
 def test_import_ipp_bench_registers_the_tasks():

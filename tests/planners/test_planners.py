@@ -269,8 +269,8 @@ def test_greedy_choice_does_not_depend_on_the_last_bits_of_a_mirror_tie(monkeypa
     assert top.size == 2, scores  # the mirror pair
     real = G.greedy_scores
     for nudged in top:
-        def one_ulp_up(view, node, roi=None, _i=nudged):
-            s = real(view, node, roi).copy()
+        def one_ulp_up(view, node, roi=None, belief=None, _i=nudged):
+            s = real(view, node, roi, belief).copy()
             s[_i] = np.nextafter(s[_i], np.inf)
             return s
         monkeypatch.setattr(G, "greedy_scores", one_ulp_up)

@@ -90,7 +90,7 @@ def test_a_leg_that_sees_nothing_keeps_the_factor():
     grandchild, reward, _ = fast._transition(child, 0)
     assert reward == 0.0
     fast._expand_info(grandchild)
-    assert grandchild.buf is child.buf and grandchild.r == child.r and grandchild.K is child.K
+    assert grandchild.fdata is child.fdata and grandchild.r == child.r and grandchild.K is child.K
 
 
 @pytest.mark.parametrize("task", TASKS_15)

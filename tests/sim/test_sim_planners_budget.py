@@ -14,7 +14,7 @@ pytest.importorskip("mujoco")
 
 import ipp_bench.envs as envs  # noqa: E402
 from ipp_bench.eval.runner import run_episode  # noqa: E402
-from ipp_bench.planners import planner_names  # noqa: E402
+from ipp_bench.planners import is_team_planner, planner_names  # noqa: E402
 
 MUJOCO_TASKS = sorted(t for t, s in envs.TASKS.items() if s.entry_point.startswith("ipp_bench.sim"))
 # cheap settings: the budget's end, not the quality of the look-ahead, is under test
@@ -30,7 +30,7 @@ def envs_by_task_and_budget():
         e.close()
 
 
-@pytest.mark.parametrize("planner", planner_names())
+@pytest.mark.parametrize("planner", [p for p in planner_names() if not is_team_planner(p)])
 @pytest.mark.parametrize("budget", [12.0, 17.0])
 @pytest.mark.parametrize("task", [t if t.endswith("-v1") else pytest.param(t, marks=pytest.mark.slow)
                                   for t in MUJOCO_TASKS])  # v0's stop-and-go clock: with -m slow

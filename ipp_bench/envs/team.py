@@ -1,0 +1,299 @@
+"""A team of UAVs on one roadmap and one shared belief, as a PettingZoo AEC environment.
+
+Decisions are asynchronous: a UAV decides when its leg ends, so the UAV whose leg ends next acts
+next. PettingZoo's AEC API is that turn order (``agent_selection`` is the UAV with the earliest
+clock, ties to the lower index); a parallel API would force every UAV to decide at once, which no
+UAV of a real team does. Each UAV's observation is the single-UAV task's
+(:class:`~ipp_bench.envs.graph.GraphIPPEnv`: node features of the shared belief, its own node,
+neighbours, action mask and budget fraction), so a single-UAV policy or planner flies any UAV of a
+team unchanged. The mask offers the legs the UAV's own budget pays for and, unless the task lets UAVs
+share nodes, not a node another UAV stands on or is flying to (where every affordable leg is taken by
+a teammate, the taken ones are offered: a UAV never stops because a teammate is in the way).
+
+The belief holds every read-out taken up to the acting UAV's clock (:class:`~ipp_bench.team.TeamMission`).
+Rewards are the team's: after each leg, the shared belief's ROI trace reduction up to the next
+decision (the single-UAV task's reward, eq. 9), given to every UAV. A UAV whose budget pays for no
+further leg is terminated (stepped with None, then removed); the episode ends when every UAV is.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium.utils import seeding
+from pettingzoo import AECEnv
+
+from .. import metrics as M
+from ..config import IPPConfig, invalid
+from ..fields import make_field
+from ..mission import cell_to_xyz
+from ..team import TeamConfig, TeamMission
+from .graph import GraphIPPEnv
+from .panels import render_mission
+
+
+class UAVEnv(GraphIPPEnv):
+    """One UAV's seat in a team episode: the single-UAV env's observation, mask and view for UAV
+    ``index`` (its mission is the UAV's :class:`~ipp_bench.team.MemberMission`, whose belief is the
+    team's). It shares the team env's roadmap and camera; it cannot be reset or stepped itself."""
+
+    def __init__(self, team_env: TeamGraphEnv, index: int):  # noqa: D107 - no GraphIPPEnv.__init__: shared parts
+        base = team_env.graph
+        self.team_env = team_env
+        self.index = index
+        self.config = base.config
+        self.task_id = base.task_id
+        self.render_mode = None
+        self.roadmap, self.sensor = base.roadmap, base.sensor
+        self._norm_xyz, self._footprint = base._norm_xyz, base._footprint
+        self.observation_space, self.action_space = base.observation_space, base.action_space
+        self.mission = None
+        self.current_node = 0
+        self.episode_seed = None
+
+    def action_masks(self) -> np.ndarray:
+        return self.team_env.uav_mask(self.index)
+
+    def reset(self, *, seed=None, options=None):
+        raise RuntimeError("a UAV of a team is reset with its team env (TeamGraphEnv.reset)")
+
+    def step(self, action):
+        raise RuntimeError("a UAV of a team is stepped by its team env (TeamGraphEnv.step)")
+
+
+class TeamGraphEnv(AECEnv):
+    """Several UAVs mapping one field into one belief (PettingZoo AEC).
+
+    Args:
+        config: the task's :class:`~ipp_bench.config.IPPConfig` (or a dict of its sections).
+        team: the task's ``[team]`` table (:class:`~ipp_bench.team.TeamConfig` or a dict).
+        render_mode: ``"rgb_array"`` or None.
+        task_id: the task's id (tables, messages).
+        **overrides: config fields by name (``budget_s=100``).
+
+    Agents are ``uav_0 .. uav_{n-1}``; their observation and action spaces are the single-UAV task's.
+    ``reset(seed=s)`` plays the task's episode seed as the single-UAV task does: the same field, the
+    first UAV's start and camera noise as the single-UAV episode of that seed, so a team and one UAV
+    are compared on the same fields. ``options={"start_nodes": [..]}`` sets every UAV's start node.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "name": "ipp_bench_team", "is_parallelizable": False,
+                "render_fps": 4}
+
+    def __init__(self, config: IPPConfig | dict | None = None, team: TeamConfig | dict | None = None,
+                 render_mode: str | None = None, task_id: str | None = None, **overrides: Any):
+        super().__init__()
+        if team is None:
+            team = TeamConfig()
+        elif isinstance(team, dict):
+            team = TeamConfig.from_dict(team)
+        elif not isinstance(team, TeamConfig):
+            invalid("team", team, "an ipp_bench.team.TeamConfig, a dict of the [team] table or None")
+        self.graph = GraphIPPEnv(config, render_mode=render_mode, task_id=task_id, **overrides)
+        self.config = self.graph.config
+        team.check(self.config)
+        self.team = team
+        self.task_id = task_id
+        self.render_mode = render_mode
+        self.roadmap, self.sensor = self.graph.roadmap, self.graph.sensor
+        if not team.share_nodes and team.size > self.roadmap.n_nodes:
+            invalid("team.size", team.size, f"at most {self.roadmap.n_nodes} UAVs on this roadmap of "
+                    f"{self.roadmap.n_nodes} nodes (team.share_nodes = false: one UAV per node)")
+        if team.starts is not None and not team.share_nodes:
+            nodes = [self.roadmap.nearest_node(cell_to_xyz(self.config, *s)) for s in team.starts]
+            if len(set(nodes)) < len(nodes):
+                invalid("team.starts", [list(s) for s in team.starts], "starts on different roadmap nodes "
+                        "(team.share_nodes = false), or team.share_nodes = true")
+        self.possible_agents = [f"uav_{i}" for i in range(team.size)]
+        self.seats = [UAVEnv(self, i) for i in range(team.size)]
+        self.mission: TeamMission | None = None
+        self.episode_seed: int | None = None
+        self.agents: list[str] = []
+        self.rewards, self._cumulative_rewards = {}, {}
+        self.terminations, self.truncations, self.infos = {}, {}, {}
+        self.agent_selection = self.possible_agents[0]
+        self._roi: np.ndarray | None = None
+
+    # -- spaces ----------------------------------------------------------------------------------
+    def observation_space(self, agent: str):
+        return self.graph.observation_space
+
+    def action_space(self, agent: str):
+        return self.graph.action_space
+
+    # -- reset -----------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None, options: dict | None = None) -> None:
+        lo, hi = self.config.mission.episode_seeds
+        if seed is None:
+            if self._np_random_unset():
+                self._seed_rng = np.random.default_rng()
+            seed = int(self._seed_rng.integers(hi - lo))
+        elif not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+            raise ValueError(f"seed = {seed!r} is invalid: expected an integer >= 0 or None")
+        seed = lo + int(seed) % (hi - lo)
+        self.episode_seed = seed
+        rng, _ = seeding.np_random(seed)  # as GraphIPPEnv.reset: the same field, start and noise for UAV 0
+        field_seed, start_seed, noise_seed = (int(v) for v in rng.integers(0, 2**63 - 1, size=3))
+        truth = make_field(self.config.mission.field, self.config.grid, np.random.default_rng(field_seed))
+        nodes = self._start_nodes(start_seed, options)
+        rngs = [np.random.default_rng(noise_seed)] + [np.random.default_rng([noise_seed, i])
+                                                      for i in range(1, self.team.size)]
+        starts = [self.roadmap.positions[n] for n in nodes]
+        self.mission = TeamMission(self.team.team_config(self.config), self.team, truth, starts, rngs,
+                                   [self.team.member_config(self.config, i) for i in range(self.team.size)],
+                                   sensor=self.sensor)
+        for seat, member, node in zip(self.seats, self.mission.members, nodes):
+            seat.mission, seat.current_node, seat.episode_seed = member, node, seed
+        self.agents = self.possible_agents[:]
+        self.rewards = {a: 0.0 for a in self.agents}
+        self._cumulative_rewards = {a: 0.0 for a in self.agents}
+        self.terminations = {a: False for a in self.agents}
+        self.truncations = {a: False for a in self.agents}
+        for i, seat in enumerate(self.seats):
+            if not seat.mission.affordable(self.roadmap.positions[self.roadmap.neighbours[seat.current_node]]).any():
+                raise ValueError(f"the budget of UAV {i} ({seat.mission.budget_s:g} s) pays for no move from its "
+                                 f"start node {seat.current_node}; raise budget_s or team.budgets_s")
+        self.infos = {a: self._info(i) for i, a in enumerate(self.agents)}
+        self._roi = self.mission.belief_roi()
+        self.agent_selection = self._next()
+
+    def _np_random_unset(self) -> bool:
+        return getattr(self, "_seed_rng", None) is None
+
+    def _start_nodes(self, start_seed: int, options: dict | None) -> list[int]:
+        n, size = self.roadmap.n_nodes, self.team.size
+        if options and "start_nodes" in options:
+            nodes = options["start_nodes"]
+            if (not isinstance(nodes, (list, tuple)) or len(nodes) != size
+                    or not all(isinstance(v, (int, np.integer)) and 0 <= v < n for v in nodes)
+                    or (not self.team.share_nodes and len(set(nodes)) < size)):
+                invalid("options['start_nodes']", nodes, f"{size} node indices in 0..{n - 1}"
+                        + ("" if self.team.share_nodes else ", all different (team.share_nodes = false)"))
+            return [int(v) for v in nodes]
+        out: list[int] = []
+        for i in range(size):
+            xyz = self.team.start_xyz(self.config, i)
+            if xyz is not None:
+                out.append(self.roadmap.nearest_node(xyz))
+                continue
+            draw = np.random.default_rng(start_seed if i == 0 else [start_seed, i])
+            node = int(draw.integers(n))
+            while not self.team.share_nodes and node in out:
+                node = int(draw.integers(n))
+            out.append(node)
+        return out
+
+    # -- turn order and masks ------------------------------------------------------------------------
+    def _next(self) -> str:
+        """A terminated UAV first (to be stepped with None), else the live UAV with the earliest clock."""
+        dead = [a for a in self.agents if self.terminations[a]]
+        if dead:
+            return dead[0]
+        live = [a for a in self.agents]
+        return min(live, key=lambda a: (self.seats[self.uav_index(a)].mission.time_s, self.uav_index(a)))
+
+    def uav_index(self, agent: str) -> int:
+        """``"uav_3"`` -> 3."""
+        return self.possible_agents.index(agent)
+
+    def uav_mask(self, i: int) -> np.ndarray:
+        """(k,) bool: UAV i's neighbours that its budget pays for and no teammate holds (see the module)."""
+        seat = self.seats[i]
+        nbrs = self.roadmap.neighbours[seat.current_node]
+        mask = seat.mission.affordable(self.roadmap.positions[nbrs])
+        if self.team.share_nodes or self.mission is None:
+            return mask
+        held = {s.current_node for j, s in enumerate(self.seats) if j != i and f"uav_{j}" in self.agents}
+        free = mask & ~np.isin(nbrs, list(held))
+        return free if free.any() else mask
+
+    # -- AEC API ---------------------------------------------------------------------------------------
+    def observe(self, agent: str) -> dict[str, np.ndarray]:
+        seat = self.seats[self.uav_index(agent)]
+        return seat._observation(self.uav_mask(seat.index))
+
+    def step(self, action) -> None:
+        if self.mission is None:
+            raise RuntimeError("call reset() before step()")
+        agent = self.agent_selection
+        if self.terminations[agent] or self.truncations[agent]:
+            if action is not None:
+                raise ValueError(f"{agent} is done: the only valid action is None")
+            self._remove(agent)
+            return
+        i = self.uav_index(agent)
+        seat = self.seats[i]
+        mask = self.uav_mask(i)
+        a = seat._check_action(action, mask)
+        self._cumulative_rewards[agent] = 0.0
+        target = int(self.roadmap.neighbours[seat.current_node, a])
+        seat.mission.fly_to(self.roadmap.positions[target])
+        seat.current_node = target
+        self._after_leg()
+
+    def fly_waypoint(self, xyz) -> None:
+        """Fly the acting UAV to ``xyz`` [m] off the roadmap (continuous planners); its node becomes
+        the nearest roadmap node. ValueError as ``Mission.fly_to``."""
+        agent = self.agent_selection
+        if self.mission is None or self.terminations.get(agent, True):
+            raise RuntimeError(f"{agent} cannot fly now (the episode is over or the UAV is done)")
+        seat = self.seats[self.uav_index(agent)]
+        self._cumulative_rewards[agent] = 0.0
+        seat.mission.fly_to(xyz)
+        seat.current_node = self.roadmap.nearest_node(seat.mission.position)
+        self._after_leg()
+
+    def retire(self) -> None:
+        """End the acting UAV's flight (a continuous planner with no further waypoint)."""
+        self.terminations[self.agent_selection] = True
+        self._after_leg()
+
+    def _after_leg(self) -> None:
+        """Terminate the UAVs that can fly no more, fuse up to the next decision, pay the team's reward."""
+        for a in self.agents:
+            i = self.uav_index(a)
+            if not self.terminations[a] and not self.seats[i].mission.affordable(
+                    self.roadmap.positions[self.roadmap.neighbours[self.seats[i].current_node]]).any():
+                self.terminations[a] = True
+        live = [a for a in self.agents if not self.terminations[a]]
+        before = M.trace_roi(self.mission.belief.variance, self._roi)
+        if live:
+            self.mission.fuse_until(min(self.seats[self.uav_index(a)].mission.time_s for a in live))
+        else:
+            self.mission.finish()
+        after = M.trace_roi(self.mission.belief.variance, self._roi)
+        reward = M.info_gain_reward(before, after)
+        self._roi = self.mission.belief_roi()
+        for a in self.agents:
+            self.rewards[a] = reward
+        self._accumulate_rewards()
+        for i, a in enumerate(self.possible_agents):
+            if a in self.agents:
+                self.infos[a] = self._info(i)
+        self.agent_selection = self._next()
+
+    def _remove(self, agent: str) -> None:
+        for table in (self.terminations, self.truncations, self.rewards, self._cumulative_rewards, self.infos):
+            del table[agent]
+        self.agents.remove(agent)
+        for a in self.agents:
+            self.rewards[a] = 0.0
+        if self.agents:
+            self.agent_selection = self._next()
+
+    def _info(self, i: int) -> dict[str, Any]:
+        seat = self.seats[i]
+        return {"node": seat.current_node, "time_s": seat.mission.time_s, "remaining_s": seat.mission.remaining_s,
+                "team": self.mission.metrics(), "episode_seed": self.episode_seed}
+
+    def render(self):
+        if self.render_mode is None or self.mission is None:
+            return None
+        return render_mission(self.mission)
+
+    def close(self) -> None:
+        self.mission = None
+
+
+__all__ = ["TeamGraphEnv", "UAVEnv"]

@@ -210,3 +210,39 @@ def test_a_team_renders_every_uavs_path(tmp_path):
     fly_team_episode(single, "greedy", 0)
     assert not np.array_equal(frame, single.render())  # the second UAV's path is drawn too
     assert save_episode_figure(env.mission, tmp_path / "team.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--tasks", "Hotspots30Team2Eval-v2", "--planners", "greedy", "--env", 'team={"size": 0}'],
+     r"team.size = 0 is invalid: expected an integer in \[1, 16\]"),
+    (["--tasks", "Hotspots30Team2Eval-v2", "--planners", "greedy", "--env", 'team={"budgets_s": [200, 0.1]}'],
+     r"task ipp_bench/Hotspots30Team2Eval-v2: the budget of UAV 1 \(0.1 s\) pays for no move"),
+    (["--tasks", "Hotspots30Eval-v2", "--planners", "team-greedy"],
+     "planner 'team-greedy' plans for a UAV of a team: fly it on a team task"),
+    (["--tasks", "Hotspots30Eval-v2", "--planners", "greedy", "--env", 'team={"size": 2}'],
+     "unknown config field 'team'"),
+])
+def test_the_leaderboard_refuses_a_team_that_does_not_fit_in_one_line_writing_nothing(tmp_path, capsys, argv,
+                                                                                        message):
+    import re
+
+    from ipp_bench.cli import main
+
+    out = tmp_path / "board"
+    assert main(["leaderboard", *argv, "--episodes", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert re.search(message, err) and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_a_team_board_flies_every_planner_per_uav_and_team_aware_ones(tmp_path):
+    import csv
+
+    from ipp_bench.cli import main
+
+    out = tmp_path / "board"
+    assert main(["leaderboard", "--tasks", "Hotspots30Team2Eval-v2", "--planners", "random,team-greedy,team-coverage",
+                 "--episodes", "2", "--env", "budget_s=30", "--env", "report_times=[15,30]", "--out", str(out)]) == 0
+    rows = list(csv.DictReader(open(out / "results.csv")))
+    assert {r["planner"] for r in rows} == {"random", "team-greedy", "team-coverage"} and len(rows) == 12
+    assert "team-greedy" in (out / "leaderboard.md").read_text()

@@ -167,6 +167,8 @@ def load_task_file(path, builtin: bool = False) -> TaskSpec:
 #: the environment classes of the suite, named where an entry point is refused
 SUITE_ENTRY_POINTS = ("ipp_bench.envs.graph:GraphIPPEnv", "ipp_bench.envs.twin:TwinIPPEnv",
                       "ipp_bench.sim.env:MuJoCoIPPEnv", "ipp_bench.envs.team:TeamGraphEnv")
+#: what ``gym.make_vec`` of a MuJoCo task passes to its vector env (the spec's ``vector_kwargs``)
+VECTOR_KWARGS = {"context": "forkserver"}
 #: the team tasks' environment: a PettingZoo AEC env, made by :func:`make_env`, not registered with gymnasium
 TEAM_ENTRY_POINT = "ipp_bench.envs.team:TeamGraphEnv"
 _ENTRY_POINT = re.compile(r"^ipp_bench(\.[A-Za-z_][A-Za-z0-9_]*)+:[A-Za-z_][A-Za-z0-9_]*$")
@@ -292,6 +294,7 @@ def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
     itself, gymnasium would wrap an ``rgb_array`` env asked for ``"human"`` in its HumanRendering
     window, which asks for pygame instead.)
     """
+    kwargs.pop("vector_kwargs", None)  # the spec's, for gym.make_vec only (_register)
     problem = entry_point_problem(env_class)
     if problem is not None:  # never import what a task file names unless it is the suite's
         raise ValueError(problem)
@@ -323,6 +326,11 @@ def _register(spec: TaskSpec) -> None:
     kwargs = {"env_class": spec.entry_point, "config": spec.config, "task_id": spec.id}
     if spec.sim:  # a deployment task's [sim] table, validated by ipp_bench.sim (never imported here)
         kwargs["sim_section"] = spec.sim
+    if "deployment" in spec.tags:
+        # gym.make_vec(..., vectorization_mode="async") starts its workers with forkserver: a worker
+        # forked from a process that has rendered would hang on its first frame (Mesa's GL threads do
+        # not survive fork). gymnasium reads these vector_kwargs from the spec; gym.make drops them.
+        kwargs["vector_kwargs"] = dict(VECTOR_KWARGS)
     gym.register(id=spec.id, entry_point=f"{__name__}:make_task_env", kwargs=kwargs,
                  disable_env_checker=True, order_enforce=False)
 

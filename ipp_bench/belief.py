@@ -86,10 +86,17 @@ def trace_reductions(cov: np.ndarray, batch: LegBatch, roi: np.ndarray) -> np.nd
     sum over ROI columns r of (H P)_r^T S^-1 (H P)_r. Legs that see nothing give 0. S is small
     (rows of one leg) and well conditioned (R >= the sensor's noise floor), so its inverse is used.
     """
+    if batch.index.size == 0:
+        return np.zeros(batch.size)
+    return trace_reductions_of_rows(cov[batch.cells, :], batch, roi)
+
+
+def trace_reductions_of_rows(rows: np.ndarray, batch: LegBatch, roi: np.ndarray) -> np.ndarray:
+    """:func:`trace_reductions` from the covariance's rows of ``batch.cells`` only (``cov[batch.cells, :]``)."""
     out = np.zeros(batch.size)
     if batch.index.size == 0:
         return out
-    HP = batch.W @ cov[batch.cells, :]  # (b, M, n): H P per leg
+    HP = batch.W @ rows  # (b, M, n): H P per leg
     S = HP[:, :, batch.cells] @ batch.W.transpose(0, 2, 1)
     idx = np.arange(S.shape[1])
     S[:, idx, idx] += batch.var
@@ -234,6 +241,54 @@ class GPBelief:
         """
         batch = legs if isinstance(legs, LegBatch) else LegBatch(list(legs))
         return trace_reductions(self.cov, batch, roi)
+
+
+class PredictedBelief:
+    """A :class:`GPBelief` as it will be after read-outs not yet taken: its covariance after them, kept
+    as the low-rank downdate P - A A^T of :func:`gain_factor` (the covariance does not depend on the
+    values read, so this is exact), and its mean today's (the values are unknown). Rows of the
+    covariance are formed on demand; the whole matrix only if asked for (:attr:`cov`).
+
+    Args:
+        belief: the belief now.
+        observations: the read-outs to come (:class:`~ipp_bench.sensor.Observation`), at least one.
+    """
+
+    def __init__(self, belief: GPBelief, observations) -> None:
+        from .sensor import stack
+
+        cells, W, var = stack(list(observations))
+        self.base = belief
+        self.mean = belief.mean
+        self.shape = belief.shape
+        self.A = gain_factor(belief.cov, cells, W, var)[0]  # (n, m)
+        self._cov: np.ndarray | None = None
+
+    @property
+    def n(self) -> int:
+        return self.base.n
+
+    def rows(self, cells: np.ndarray) -> np.ndarray:
+        """(len(cells), n): the predicted covariance's rows ``cells``."""
+        return self.base.cov[cells, :] - self.A[cells] @ self.A.T
+
+    @property
+    def cov(self) -> np.ndarray:
+        """(n, n) the predicted covariance (formed once, on first use)."""
+        if self._cov is None:
+            self._cov = self.base.cov - self.A @ self.A.T
+        return self._cov
+
+    @property
+    def variance(self) -> np.ndarray:
+        return np.maximum(np.diag(self.base.cov) - np.einsum("ij,ij->i", self.A, self.A), 0.0)
+
+    def trace_reductions(self, legs, roi: np.ndarray) -> np.ndarray:
+        """:meth:`GPBelief.trace_reductions` on the predicted covariance, from its rows of the legs' cells."""
+        batch = legs if isinstance(legs, LegBatch) else LegBatch(list(legs))
+        if batch.index.size == 0:
+            return np.zeros(batch.size)
+        return trace_reductions_of_rows(self.rows(batch.cells), batch, roi)
 
 
 def value_scale(t, floor: float) -> np.ndarray:
@@ -410,5 +465,5 @@ def error_states(mission) -> PersistentErrorBelief | None:
     return model if isinstance(model, PersistentErrorBelief) else None
 
 
-__all__ = ["GPBelief", "PersistentErrorBelief", "WhiteNoiseBelief", "belief_model", "cell_centres", "error_states",
-           "matern32", "normalised_innovation", "prior_covariance", "value_scale"]
+__all__ = ["GPBelief", "PersistentErrorBelief", "PredictedBelief", "WhiteNoiseBelief", "belief_model", "cell_centres",
+           "error_states", "matern32", "normalised_innovation", "prior_covariance", "value_scale"]

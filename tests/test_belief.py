@@ -317,3 +317,28 @@ def test_nis_is_chi_square_when_neighbouring_cells_share_their_error_and_not_if_
     assert chi2.ppf(0.0005, dof) <= nis <= chi2.ppf(0.9995, dof), nis / dof
     nis, dof = totals["independent"]
     assert nis > chi2.ppf(0.9995, dof), nis / dof
+
+
+def test_predicted_belief_is_the_covariance_after_the_read_outs_without_forming_it():
+    """PredictedBelief = a copy updated with the read-outs (any values): covariance, rows, variances
+    and the legs' trace reductions; the mean stays today's."""
+    from ipp_bench.belief import LegBatch, PredictedBelief
+    from ipp_bench.config import GridConfig, SensorConfig
+    from ipp_bench.sensor import Sensor, stack
+
+    belief = GPBelief.from_grid((12, 12), 2.5, 6.0, 0.05, 0.1, 0.001)
+    sensor = Sensor(GridConfig(rows=12, cols=12, resolution=2.5), SensorConfig())
+    coming = [sensor.observe(np.array(p)) for p in ([5.0, 5.0, 8.0], [12.0, 9.0, 14.0], [20.0, 20.0, 8.0])]
+    predicted = PredictedBelief(belief, coming)
+    updated = belief.copy()
+    cells, W, var = stack(coming)
+    updated.update_local(cells, W, np.full(W.shape[0], 0.7), var)
+    np.testing.assert_allclose(predicted.cov, updated.cov, atol=1e-14)
+    np.testing.assert_allclose(predicted.rows(np.array([3, 40])), updated.cov[[3, 40], :], atol=1e-14)
+    np.testing.assert_allclose(predicted.variance, updated.variance, atol=1e-14)
+    np.testing.assert_array_equal(predicted.mean, belief.mean)
+    legs = [(o.cells, o.weights, o.var) for o in (sensor.observe(np.array(p)) for p in
+                                                ([7.5, 5.0, 8.0], [2.0, 25.0, 14.0]))] + [None]
+    roi = np.arange(belief.n) % 3 == 0
+    np.testing.assert_allclose(predicted.trace_reductions(LegBatch(legs), roi),
+                               updated.trace_reductions(LegBatch(legs), roi), rtol=1e-10, atol=1e-15)

@@ -18,7 +18,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from .. import metrics as M
-from ..belief import GPBelief, error_states
+from ..belief import GPBelief, PredictedBelief, error_states
 from ..belief_window import WindowBelief
 from ..config import IPPConfig
 from ..gains import TIE_RTOL, beats, first_best  # noqa: F401  (the planners' argmax and comparison, here for plugins)
@@ -259,21 +259,15 @@ class TeamRobotView(RobotView):
         belief): their observations only, in time order."""
         return _ENVS[self].team_env.mission.pending_observations(exclude=self.uav)
 
-    def belief_ahead(self) -> GPBelief:
-        """The belief with the teammates' pending read-outs fused into its covariance in advance (the
-        mean is today's): the covariance does not depend on the values read, so this is exactly the
-        covariance the belief will have once they are taken. The live belief where none are pending."""
+    def belief_ahead(self) -> GPBelief | PredictedBelief:
+        """The belief with the teammates' pending read-outs fused into its covariance in advance
+        (:class:`~ipp_bench.belief.PredictedBelief`; the mean is today's): the covariance does not
+        depend on the values read, so this is exactly the covariance the belief will have once they
+        are taken. The live belief where none are pending."""
         self.require_dense_belief("a team-aware planner", "the teammates' read-outs are fused into the full "
                                   "covariance")
-        belief = self.belief
         pending = self.teammates_pending()
-        if not pending:
-            return belief
-        ahead = belief.copy()
-        cells, W, var = stack(pending)
-        ahead.update_local(cells, W, W @ ahead.mean[cells], var)  # values at the predicted mean: no innovation
-        ahead.mean = belief.mean.copy()
-        return ahead
+        return PredictedBelief(self.belief, pending) if pending else self.belief
 
 
 class TeamTruthView(TeamRobotView, TruthView):

@@ -217,8 +217,6 @@ def test_a_team_renders_every_uavs_path(tmp_path):
      r"team.size = 0 is invalid: expected an integer in \[1, 16\]"),
     (["--tasks", "Hotspots30Team2Eval-v2", "--planners", "greedy", "--env", 'team={"budgets_s": [200, 0.1]}'],
      r"task ipp_bench/Hotspots30Team2Eval-v2: the budget of UAV 1 \(0.1 s\) pays for no move"),
-    (["--tasks", "Hotspots30Eval-v2", "--planners", "team-greedy"],
-     "planner 'team-greedy' plans for a UAV of a team: fly it on a team task"),
     (["--tasks", "Hotspots30Eval-v2", "--planners", "greedy", "--env", 'team={"size": 2}'],
      "unknown config field 'team'"),
 ])
@@ -246,3 +244,27 @@ def test_a_team_board_flies_every_planner_per_uav_and_team_aware_ones(tmp_path):
     rows = list(csv.DictReader(open(out / "results.csv")))
     assert {r["planner"] for r in rows} == {"random", "team-greedy", "team-coverage"} and len(rows) == 12
     assert "team-greedy" in (out / "leaderboard.md").read_text()
+
+
+def test_the_report_pairs_a_team_with_its_single_uav_task_at_equal_flight_and_mission_time():
+    from ipp_bench.eval.report import Aggregate, team_pairs, team_section
+
+    single, team = "ipp_bench/Hotspots30Eval-v2", TEAM2
+    assert team_pairs([single, team, "ipp_bench/Grid30Eval-v1"]) == [(single, team, 2)]
+    rows = []
+    for seed in range(4):
+        for task, t, value in [(single, 50.0, 10.0 + seed), (single, 100.0, 20.0 + seed),
+                               (team, 50.0, 25.0 + 2 * seed), (team, 100.0, 30.0)]:
+            row = {"task": task, "planner": "greedy", "seed": seed, "time_s": t, "decision_time_mean_s": 0.01}
+            row.update({k: value for k in ("trace_roi", "rmse_roi", "uncertainty_reduction_pct",
+                                           "rmse_reduction_pct")})
+            rows.append(row)
+    text = team_section(Aggregate(rows))
+    assert "| Method | 2 UAVs at 50 s - one at 100 s | 2 UAVs - one, at 50 s | 2 UAVs - one, at 100 s |" in text
+    line = next(ln for ln in text.splitlines() if ln.startswith("| `greedy`"))
+    cells = [c.strip() for c in line.strip("|").split("|")][1:]
+    # team at 50 minus single at 100: 25 + 2s - (20 + s) = 5 + s, mean 6.5; at 50: 15 + s, mean 16.5;
+    # at 100: 30 - (20 + s) = 10 - s, mean 8.5
+    assert [c.split(" ")[0] for c in cells] == ["+6.5", "+16.5", "+8.5"]
+    assert all(c.endswith("won 4/4") for c in cells)
+    assert team_section(Aggregate([r for r in rows if r["task"] == team])) == ""

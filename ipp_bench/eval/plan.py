@@ -237,8 +237,9 @@ def planner_fingerprint(planner: Any) -> dict[str, str]:
 
 def default_planners(log: Callable[[str], None] = print, team: bool = False) -> list[str]:
     """Every registered planner that can be built here; the others are left out with a note. The
-    team-aware planners (``team-greedy``, ...) only where ``team`` (every task a team task): any other
-    planner flies each UAV of a team on its own.
+    team-aware planners (``team-greedy``, ...) only where ``team`` (a team task among the tasks): any
+    other planner flies each UAV of a team on its own, and on one UAV they fly as their single-UAV
+    counterparts.
 
     A planner whose module, extra (torch, pycma) or checkpoint is missing, or a plugin that fails
     to build (no ``Config``, an exception in its constructor), cannot run; that is fine for the
@@ -382,7 +383,7 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
                          "(e.g. --planners random greedy), or leave --planners out for every planner")
     explicit = planners is not None
     specs = list(planners) if planners is not None else default_planners(
-        log, team=all(is_team_task(t) for t in task_ids))
+        log, team=any(is_team_task(t) for t in task_ids))
     if not specs:
         raise ValueError("no planner can be built: pass --planners")
     resolved, fingerprints, quick_changed, built = [], {}, quick and episodes is None, {}

@@ -222,6 +222,68 @@ def _pairs_table(agg: Aggregate, pairs: Sequence[tuple[str, str]], key: str, nam
     return "\n".join(lines) + "\n"
 
 
+def team_pairs(tasks: Sequence[str]) -> list[tuple[str, str, int]]:
+    """(single-UAV task, team task, UAVs) for every team task among ``tasks`` whose single-UAV task (the
+    same configuration: field family, prior, camera, roadmap, budget, report times, seeds) is there too."""
+    from ..envs.registry import TASKS, TEAM_ENTRY_POINT
+    from ..team import TeamConfig
+
+    out = []
+    for team in tasks:
+        spec = TASKS.get(team)
+        if spec is None or spec.entry_point != TEAM_ENTRY_POINT:
+            continue
+        for single in tasks:
+            other = TASKS.get(single)
+            if other is not None and other.entry_point != TEAM_ENTRY_POINT and other.config == spec.config:
+                out.append((single, team, TeamConfig.from_dict(spec.team).size))
+    return out
+
+
+def _cross_cell(agg: Aggregate, a: tuple[str, float], b: tuple[str, float], planner: str, key: str) -> str:
+    """``planner`` on task a at time a minus on task b at time b, paired by seed: mean [interval], won."""
+    mine, theirs = agg.by_seed(a[0], planner, a[1], key), agg.by_seed(b[0], planner, b[1], key)
+    seeds = sorted(set(mine) & set(theirs))
+    if not seeds:
+        return "–"
+    d = np.array([mine[s] - theirs[s] for s in seeds])
+    mean, low, high = bootstrap_ci(d)
+    interval = "" if low is None else f" [{low:+.1f}, {high:+.1f}]"
+    return f"{mean:+.1f}{interval}, won {int(np.sum(d > 0))}/{len(seeds)}"
+
+
+def team_section(agg: Aggregate, key: str = "uncertainty_reduction_pct") -> str:
+    """What more UAVs buy: each planner's team rows minus its single-UAV rows on the same seeds, at equal
+    flight time (n UAVs at t against one UAV at n t) and at equal mission time; empty without a pair."""
+    parts = []
+    for single, team, n in team_pairs(agg.tasks):
+        times_team, times_single = agg.times.get(team, []), agg.times.get(single, [])
+        flight = [t for t in times_team if any(abs(n * t - u) < 1e-9 for u in times_single)]
+        same = [t for t in times_team if t in times_single]
+        planners = [p for p in ordered(agg.planners) if agg.episodes(team, p) and agg.episodes(single, p)]
+        if not planners or not (flight or same):
+            continue
+        header = (["Method"] + [f"{n} UAVs at {t:g} s - one at {n * t:g} s" for t in flight]
+                  + [f"{n} UAVs - one, at {t:g} s" for t in same])
+        lines = ["| " + " | ".join(header) + " |", "|:--" + "|--:" * (len(header) - 1) + "|"]
+        for p in planners:
+            cells = [_cross_cell(agg, (team, t), (single, n * t), p, key) for t in flight]
+            cells += [_cross_cell(agg, (team, t), (single, t), p, key) for t in same]
+            lines.append("| " + " | ".join([_label(p, agg.published)] + cells) + " |")
+        parts += [
+            f"## What {n} UAVs buy: `{short_task(team)}` minus `{short_task(single)}`, on the same episodes",
+            "",
+            (f"Each planner's uncertainty reduction with {n} UAVs minus its own with one UAV, paired by seed (a seed "
+             f"plays the same field, the same first start and camera noise on both tasks): mean in percentage "
+             f"points [{LEVEL:.0%} paired {BOOTSTRAP_METHOD} bootstrap interval], episodes the team did better. "
+             f"Equal flight time: by t the {n} UAVs have flown {n} t seconds, what one UAV flies by {n} t. A "
+             "team-aware planner's single-UAV rows are its single-UAV counterpart's."),
+            "",
+            "\n".join(lines) + "\n",
+        ]
+    return "\n".join(parts)
+
+
 # --------------------------------------------------------------------------------------------------
 # the aggregate over the benchmark tasks, and the power rule
 # --------------------------------------------------------------------------------------------------
@@ -529,6 +591,9 @@ def markdown_report(agg: Aggregate, command: str | None = None, quick: bool = Fa
                 "",
                 versus_table(agg, planner, key),
             ]
+    teams = team_section(agg)
+    if teams:
+        parts += [teams]
     if ref is not None and power is not None:
         section = power_section(agg, ref, power)
         if section:

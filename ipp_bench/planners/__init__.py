@@ -251,7 +251,8 @@ def planner_class(name: str, registry: PlannerRegistry | None = None) -> type:
 
 
 def is_team_planner(name: str, registry: PlannerRegistry | None = None) -> bool:
-    """Whether planner ``name`` plans for a UAV of a team (``team-greedy``, ...: a team task only)."""
+    """Whether planner ``name`` is team-aware (``team-greedy``, ...; on one UAV it flies as its
+    single-UAV counterpart)."""
     return bool(getattr(planner_class(name, registry), "team", False))
 
 
@@ -324,17 +325,16 @@ def is_reference(spec: str) -> bool:
 
 def view_for(planner: Any, env: Any) -> RobotView:
     """The view ``planner`` gets of ``env``: a :class:`TruthView` for the suite's reference planners,
-    a :class:`RobotView` (no ground truth) for every other.
+    a :class:`RobotView` (no ground truth) for every other; their team forms
+    (:class:`TeamRobotView`, :class:`TeamTruthView`) for a UAV of a team and for a team-aware planner.
 
     Raises:
         ValueError: a planner that asks to read the truth (``reads_truth``) but is not one of
             :data:`REFERENCE_PLANNERS` as :data:`BUILT_IN` names it (neither a plugin nor a planner of a
             local registry can grant itself the truth).
     """
-    team = getattr(env, "team_env", None) is not None  # a UAV of a team (ipp_bench.envs.team.UAVEnv)
-    if getattr(planner, "team", False) and not team:
-        raise ValueError(f"planner {getattr(planner, 'name', '?')!r} plans for a UAV of a team: fly it on a team "
-                         "task (tag team, e.g. ipp_bench/Hotspots30Team2Eval-v2)")
+    # a UAV of a team (ipp_bench.envs.team.UAVEnv), or a team-aware planner on one UAV (a team of one)
+    team = getattr(env, "team_env", None) is not None or getattr(planner, "team", False)
     if not getattr(planner, "reads_truth", False):
         return TeamRobotView(env) if team else RobotView(env)
     name = getattr(planner, "name", "?")

@@ -236,28 +236,31 @@ class TeamRobotView(RobotView):
     """A UAV's view in a team episode (:class:`~ipp_bench.envs.team.TeamGraphEnv`): the robot's view of
     its own UAV (position, clock, budget, mask) on the team's shared belief, plus what a team shares
     by radio: where its teammates are bound and the read-outs their committed legs will take (where
-    and how noisy, never the values)."""
+    and how noisy, never the values). On a single-UAV task it is the view of a team of one (no
+    teammates), so a team-aware planner flies it as its single-UAV counterpart."""
 
     __slots__ = ()
 
     @property
     def uav(self) -> int:
         """This UAV's index in the team (0-based)."""
-        return _ENVS[self].index
+        return getattr(_ENVS[self], "index", 0)
 
     @property
     def team_size(self) -> int:
-        return _ENVS[self].team_env.team.size
+        team = getattr(_ENVS[self], "team_env", None)
+        return 1 if team is None else team.team.size
 
     def teammate_nodes(self) -> list[int]:
         """The roadmap nodes the other UAVs stand on or are flying to."""
-        team = _ENVS[self].team_env
-        return [seat.current_node for seat in team.seats if seat.index != self.uav]
+        team = getattr(_ENVS[self], "team_env", None)
+        return [] if team is None else [seat.current_node for seat in team.seats if seat.index != self.uav]
 
     def teammates_pending(self) -> list[Observation]:
         """The read-outs the other UAVs' committed legs take after this UAV's clock (not yet in the
         belief): their observations only, in time order."""
-        return _ENVS[self].team_env.mission.pending_observations(exclude=self.uav)
+        team = getattr(_ENVS[self], "team_env", None)
+        return [] if team is None else team.mission.pending_observations(exclude=self.uav)
 
     def belief_ahead(self) -> GPBelief | PredictedBelief:
         """The belief with the teammates' pending read-outs fused into its covariance in advance

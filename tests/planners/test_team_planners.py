@@ -91,16 +91,21 @@ def test_attention_flies_each_uav_of_a_team():
     assert result.decisions > 4 and all(len(s.mission.path) > 2 for s in env.seats)
 
 
-def test_team_aware_planners_fly_teams_only_and_the_team_oracle_alone_reads_the_truth():
-    single = make_env("ipp_bench/Hotspots30Eval-v2")
-    single.reset(seed=0)
-    for spec in ("team-greedy", "team-coverage", "team-oracle"):
-        with pytest.raises(ValueError, match=f"planner '{spec}' plans for a UAV of a team: fly it on a team task"):
-            view_for(make_planner(spec), single)
+@pytest.mark.parametrize("team, single", [("team-greedy", "greedy"), ("team-coverage", "coverage"),
+                                          ("team-oracle", "oracle")])
+def test_on_one_uav_a_team_aware_planner_flies_as_its_single_uav_counterpart(team, single):
+    env = make_env("ipp_bench/Hotspots30Eval-v2", budget_s=60, report_times=[30, 60])
+    assert fly_episode(env, team, 5).report == fly_episode(env, single, 5).report
+    one = make_env(TEAM2, budget_s=60, report_times=[30, 60], team={"size": 1, "starts": None})
+    assert fly_episode(one, team, 5).report == fly_episode(env, single, 5).report  # the team env of one UAV too
+
+
+def test_only_the_team_oracle_reads_the_truth():
     env = make_env(TEAM2)
     env.reset(seed=0)
     assert hasattr(view_for(make_planner("team-oracle"), env.seats[0]), "true_roi")
     assert not hasattr(view_for(make_planner("team-greedy"), env.seats[0]), "true_roi")
+    assert not hasattr(view_for(make_planner("greedy"), env.seats[0]), "true_roi")
 
 
 def test_team_greedy_reward_sum_is_the_team_trace_reduction():

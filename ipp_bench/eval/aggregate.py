@@ -76,6 +76,8 @@ BOOTSTRAP_METHOD = "percentile"
 SCORE_KEY = "uncertainty_reduction_pct"
 LOWER_ANCHOR = "random"
 UPPER_ANCHOR = "oracle"
+#: the upper anchor of a team board, where the ``oracle`` reference is ``team-oracle`` (on one UAV the same)
+TEAM_UPPER_ANCHOR = "team-oracle"
 #: [points] the lower and upper anchors when the board has no ``random`` / no ``oracle`` rows
 LOWER_DEFAULT, UPPER_DEFAULT = 0.0, 100.0
 #: [points] a task and time whose random-to-oracle span is smaller is left out of the aggregate
@@ -237,7 +239,8 @@ def normalised_board(rows: Iterable[dict[str, Any]], planners: Sequence[str] | N
         notes.append(f"left out of the aggregate (no rows on every task): "
                      f"{', '.join(p for p in planners if p not in kept)}")
     tasks, planners = kept_tasks, kept
-    lower, upper = _anchor(planners, LOWER_ANCHOR), _anchor(planners, UPPER_ANCHOR)
+    lower = _anchor(planners, LOWER_ANCHOR)
+    upper = _anchor(planners, UPPER_ANCHOR) or _anchor(planners, TEAM_UPPER_ANCHOR)
     board = Board(planners, [], [], [], [], {}, lower or f"{LOWER_DEFAULT:g} % (no `{LOWER_ANCHOR}` rows)",
                   upper or f"{UPPER_DEFAULT:g} % (no `{UPPER_ANCHOR}` rows)", key, notes)
     if not planners:

@@ -299,6 +299,11 @@ def aggregate_estimates(agg: Aggregate) -> tuple[agg_stats.Board, agg_stats.Aggr
     return board, agg_stats.estimate(board)
 
 
+def _anchor_text(anchor: str) -> str:
+    """An anchor as the report names it: a planner spec in code style, the default's words as they are."""
+    return anchor if " rows)" in anchor else f"`{anchor}`"
+
+
 def aggregate_section(agg: Aggregate, board: agg_stats.Board, est: agg_stats.AggregateEstimates | None,
                       profile_png: str | None = None) -> str:
     """The report's opening section: IQM of the normalised score per planner with its interval and
@@ -335,8 +340,9 @@ def aggregate_section(agg: Aggregate, board: agg_stats.Board, est: agg_stats.Agg
         parts += [f"![performance profile]({profile_png})", ""]
     parts += [
         (f"Score: per task and report time, an episode's uncertainty reduction as the share of the way from "
-        f"`{board.lower}` (0) to `{board.upper}` (1), both anchors the means over this board's episodes of that "
-        "task and time (the anchors of a published board stay fixed when a planner is compared against it). "
+        f"{_anchor_text(board.lower)} (0) to {_anchor_text(board.upper)} (1), both anchors the means over this "
+        "board's episodes of that task and time (the anchors of a published board stay fixed when a planner is "
+        "compared against it). "
         "Raw percentages do not pool: a 15 x 15 map saturates near 97 % while the best planner on a 30 x 30 map "
         "is below 50 % at 100 s; the normalised score puts every task and time on the scale of the room between "
         f"flying without a plan and knowing where the region of interest lies. Over {len(board.tasks)} tasks "

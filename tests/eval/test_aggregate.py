@@ -235,3 +235,13 @@ def test_the_aggregate_of_a_report_has_its_interval_and_profile():
     point, low, high = est.profile["greedy"]
     assert np.all(low <= point + 1e-12) and np.all(point <= high + 1e-12)
     assert point[np.searchsorted(est.taus, 0.0)] == 1.0
+
+
+def test_a_team_board_takes_team_oracle_as_its_upper_anchor():
+    from ipp_bench.eval.aggregate import normalised_board
+
+    rows = [{"task": "ipp_bench/Toy-v0", "planner": p, "seed": s, "time_s": 50.0, "uncertainty_reduction_pct": v}
+            for s in range(3) for p, v in (("random", 20.0), ("team-oracle", 80.0), ("greedy", 50.0 + s))]
+    board = normalised_board(rows)
+    assert (board.lower, board.upper) == ("random", "team-oracle")
+    assert board.anchors[("ipp_bench/Toy-v0", 50.0)] == (20.0, 80.0)

@@ -10,10 +10,12 @@ Figures:
 
 - timing (default): on every task of ``--tasks`` (15 x 15 and 30 x 30, v1 and v2), ``--decisions``
   decisions of a real episode, each planned by both searches from the same state with the same random
-  state (the order of the two alternates): the median time per decision of ``mcts`` (low-rank gains) and
-  of ``mcts:search=reference`` (a dense covariance per tree edge), their ratio, and the same for
-  ``cmaes`` against ``cmaes:evaluation=reference``; with the machine's load average (``os.getloadavg``)
-  before and after each task, since both are timed on a shared machine;
+  state (the order of the two alternates): the median time per decision of ``mcts:search=lowrank``
+  (low-rank gains, compiled) and of ``mcts:search=reference`` (a dense covariance per tree edge), their
+  ratio, and the same for ``cmaes:evaluation=batched`` against ``cmaes:evaluation=reference``; with the
+  machine's load average (``os.getloadavg``) before and after each task, since both are timed on a shared
+  machine. The fast planners' numba kernels are compiled once per process, when such a planner is first
+  reset (never inside a decision); the first line says how long that took;
 - ``--agreement N``: N decision states of real episodes (the reference flying, fixed seeds, split
   over the v1 and v2 tasks of ``--agreement-tasks``), both searches from each with the same random
   state: the share of identical moves, and for each other one why the two trees parted (the first
@@ -45,18 +47,33 @@ MCTS = "mcts:simulations=24,search=lowrank"
 CMAES = "cmaes:evaluation=batched"
 
 
+def _compile_kernels() -> str:
+    """Compile the fast searches' kernels now, and say how long it took."""
+    t0 = time.perf_counter()
+    from ipp_bench.planners import _search_kernels
+
+    _search_kernels.warm_up()
+    return (f"numba kernels compiled in {time.perf_counter() - t0:.1f} s (once per process, when a fast planner is "
+            "first reset; in no decision's time)")
+
+
 def _load() -> str:
     return "load {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
+
+
+def _with_setting(spec: str, setting: str) -> str:
+    """``spec`` with ``setting`` (``key=value``) in place of any value it gives that key."""
+    key = setting.split("=")[0]
+    name, _, settings = spec.partition(":")
+    kept = [s for s in settings.split(",") if s and s.split("=")[0] != key]
+    return f"{name}:" + ",".join(kept + [setting])
 
 
 def _pair(spec: str, reference_setting: str):
     """(new, reference) planners of ``spec``."""
     from ipp_bench.planners import make_planner
 
-    key = reference_setting.split("=")[0]
-    name, _, settings = spec.partition(":")
-    kept = [s for s in settings.split(",") if s and s.split("=")[0] != key]
-    return make_planner(spec), make_planner(f"{name}:" + ",".join(kept + [reference_setting]))
+    return make_planner(spec), make_planner(_with_setting(spec, reference_setting))
 
 
 def _sync(src, dst) -> None:
@@ -235,7 +252,7 @@ def bench_paired(args) -> None:
 
     spec = args.spec if args.paired_planner == "mcts" else CMAES
     setting = "search=reference" if args.paired_planner == "mcts" else "evaluation=reference"
-    specs = {"new": spec, "reference": spec + ("," if ":" in spec else ":") + setting}
+    specs = {"new": spec, "reference": _with_setting(spec, setting)}
     done: dict[tuple, dict] = {}
     if args.out and os.path.exists(args.out):
         with open(args.out) as fh:
@@ -298,6 +315,7 @@ def main() -> int:
     limit_blas_threads()
     print(f"python {platform.python_version()}, numpy {np.__version__}, {platform.processor() or platform.machine()}, "
           f"{len(os.sched_getaffinity(0))} CPUs available; {_load()}", flush=True)
+    print(_compile_kernels(), flush=True)
     if not args.skip_timing:
         bench_timing(args)
     if args.agreement:

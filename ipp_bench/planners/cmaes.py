@@ -12,12 +12,17 @@ How a population is scored with ``evaluation = "batched"`` (on the dense belief;
 reduction of Tr(P) over the ROI D by a path's read-outs (rows W on cells c, noise R) is
 ``Tr(S^-1 G)`` with ``S = W P[c, c] W^T + R`` and ``G = W B[c, c] W^T``, ``B = P D P``: the sum over
 the ROI of the Kalman update's ``diag(C S^-1 C^T)`` (``C = P H^T``) regrouped. B is computed once
-per decision (one n x n x n_ROI product) and shared by every candidate of every population, so a
-candidate costs O(nnz(W) q + m^3) (m rows, q cells; W is sparse: each row averages at most a binning
-block; the m^3 is one Cholesky factorisation and inverse of S) instead of the O(n q m + n m^2) of its
-update against the whole map. ``evaluation = "reference"`` scores each candidate with the belief's own
-prediction (:meth:`~ipp_bench.planners.base.RobotView.predict_variance`), as the window belief always
-is (it has no dense P). Both give the same values up to rounding, so CMA-ES takes the same steps.
+per decision (one n x n x n_ROI product) and shared by every candidate of every population. A
+candidate's read-outs are placed as the mission places them (the spacing rule of
+:meth:`~ipp_bench.planners.base.RobotView.leg_observations`) and turned into the camera's sparse rows, a
+footprint looked at twice folded into one row with both looks' precision (the same posterior); S and G
+are summed from the nonzero weights (each row averages at most a binning block). That is compiled code
+(:mod:`~ipp_bench.planners._search_kernels`; numba, the ``eval`` extra); then one Cholesky
+factorisation and inverse of S (LAPACK). A candidate of m rows on q cells costs O(nnz(W) q + m^3)
+instead of the O(n q m + n m^2) of its update against the whole map. ``evaluation = "reference"`` scores
+each candidate with the belief's own prediction (:meth:`~ipp_bench.planners.base.RobotView.predict_variance`),
+as the window belief always is (it has no dense P). Both give the same values up to rounding, so CMA-ES
+takes the same steps.
 """
 
 from __future__ import annotations
@@ -25,12 +30,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
 from scipy.linalg import lapack
 
 from ..belief import GPBelief
 from ..config import check_integer, check_number
-from ..sensor import stack
 from .base import MIN_FLIGHT_M, ContinuousPlanner
 
 #: how a population's objective values are computed (the same values, up to rounding)
@@ -86,6 +89,11 @@ class CMAESPlanner(ContinuousPlanner):
         except ImportError:
             raise ImportError('the cmaes planner needs pycma: pip install "ipp-bench[eval]"') from None
         super().__init__(config or CMAESConfig())
+        if self.settings.evaluation == "batched":
+            from . import _search_kernels
+
+            _search_kernels.require_numba("cmaes:evaluation=batched")
+            self._kernels = _search_kernels
 
     def reset(self, view, seed):
         super().reset(view, seed)
@@ -96,8 +104,11 @@ class CMAESPlanner(ContinuousPlanner):
         self._map_hi = np.array([width, height, alts[-1] if alts[-1] > alts[0] else alts[0] + 1e-6])
         self._lo, self._hi = self._map_lo, self._map_hi  # the search box of the decision
         self._plan: np.ndarray | None = None  # (n_waypoints, 3) [m] the last decision's waypoints
-        self._pb_buf: np.ndarray | None = None  # (n, 2n) buffer of [P | P D P], reused by the decisions
-        self._PB: np.ndarray | None = None
+        self._P: np.ndarray | None = None  # the decision's covariance (None: the reference evaluation)
+        self._B: np.ndarray | None = None  # (n, n) P D P, its buffer reused by the decisions
+        if self.settings.evaluation == "batched":
+            self._camera = self._kernels.camera_args(view.sensor)
+            self._kernels.warm_up()  # compiled once per process, before the first decision's clock starts
 
     def _search_box(self) -> tuple[np.ndarray, np.ndarray]:
         """The box CMA-ES searches in: the map's, or ``reach_m`` around the UAV within it."""
@@ -120,8 +131,10 @@ class CMAESPlanner(ContinuousPlanner):
             pts[0] = np.clip(here + direction * self.settings.min_leg_m, self._lo, self._hi)
         return pts
 
-    def _path(self, pts: np.ndarray) -> tuple[list, float]:
-        """Observations along the path and its flight time, cut at the remaining budget.
+    def _path(self, pts: np.ndarray, points: bool = False) -> tuple[list, float]:
+        """Observations along the path and its flight time, cut at the remaining budget (``points``: the
+        read-out positions instead, one (K, 3) array per leg, as :meth:`~ipp_bench.planners.base.RobotView.
+        leg_observations` places them).
 
         The objective's model of the flight is the nominal one (length / speed); the waypoint
         actually flown is cut to what the mission's clock affords (:meth:`affordable`).
@@ -139,7 +152,10 @@ class CMAESPlanner(ContinuousPlanner):
                 dist = left
             if dist < MIN_FLIGHT_M:
                 break
-            obs += view.leg_observations(here, p)
+            if points:
+                obs.append(self._kernels.leg_points(here, p, view.config.mission.measurement_spacing))
+            else:
+                obs += view.leg_observations(here, p)
             flown += dist
             left -= dist
             here = p
@@ -156,49 +172,41 @@ class CMAESPlanner(ContinuousPlanner):
 
     def _objectives(self, cands) -> list[float]:
         """The objective of every candidate of a population (:meth:`_objective`'s values up to rounding)."""
-        if self._PB is None:
+        if self._P is None:
             return [self._objective(np.asarray(c)) for c in cands]
         out = []
         for c in cands:
-            obs, duration = self._path(self._to_xyz(np.asarray(c)))
-            out.append(0.0 if duration <= 0 else -self._reduction(obs) / duration)
+            legs, duration = self._path(self._to_xyz(np.asarray(c)), points=True)
+            out.append(0.0 if duration <= 0 else -self._reduction(np.concatenate(legs)) / duration)
         return out
 
     def _begin_batched(self) -> None:
-        """[P | B] (n, 2n) of the decision, B = P D P over its ROI D; None where the belief has no dense P
-        or the reference evaluation is asked for."""
-        self._PB = None
+        """P and B = P D P of the decision (D: its ROI); None where the belief has no dense P or the reference
+        evaluation is asked for."""
+        self._P = None
         belief = self._belief
         if self.settings.evaluation != "batched" or not isinstance(belief, GPBelief):
             return
-        cov, n = belief.cov, belief.n
-        if self._pb_buf is None or self._pb_buf.shape != (n, 2 * n):
-            self._pb_buf = np.empty((n, 2 * n))
-        PB = self._pb_buf
-        PB[:, :n] = cov
-        Pr = cov[:, self._roi]
-        PB[:, n:] = Pr @ Pr.T  # P D P (P symmetric)
-        self._PB = PB
+        self._P = np.ascontiguousarray(belief.cov)
+        self._B = self._kernels.roi_product(self._P, self._roi, self._B)
 
-    def _reduction(self, obs) -> float:
-        """Tr(S^-1 G): the reduction of Tr(P) over the ROI by the read-outs ``obs`` (one batch)."""
-        cells, W, var = stack(obs)
-        n, q = self._PB.shape[0], cells.size
-        block = self._PB[np.ix_(cells, np.concatenate([cells, cells + n]))]  # (q, 2q): [P | B] on the cells
-        nz = W != 0
-        Ws = sparse.csr_array((W[nz], np.nonzero(nz)[1], np.concatenate([[0], np.cumsum(nz.sum(axis=1))])),
-                              shape=W.shape)
-        X = Ws @ block  # (m, 2q)
-        S = Ws @ np.ascontiguousarray(X[:, :q].T)
-        G = Ws @ np.ascontiguousarray(X[:, q:].T)
-        S[np.diag_indices_from(S)] += var
-        c, info = lapack.dpotrf(S, lower=1)  # the upper triangle is zeroed (clean=1)
+    def _reduction(self, points: np.ndarray) -> float:
+        """Tr(S^-1 G): the reduction of Tr(P) over the ROI by the read-outs from ``points`` ((K, 3) [m]; one
+        batch: the camera's rows from :func:`~ipp_bench.planners._search_kernels.camera_rows`, repeated rows
+        folded by :func:`~ipp_bench.planners._search_kernels.fold_repeated_rows`, S and G from
+        :func:`~ipp_bench.planners._search_kernels.readout_blocks`)."""
+        rows = self._kernels.fold_repeated_rows(*self._kernels.camera_rows(points, *self._camera))
+        if rows[3].size == 0:
+            return 0.0
+        S, G = self._kernels.readout_blocks(self._P, self._B, *rows)
+        # S is symmetric: its transpose is the Fortran-ordered S that LAPACK factors in place
+        c, info = lapack.dpotrf(S.T, lower=1, clean=1, overwrite_a=1)  # the upper triangle is zeroed
         if info == 0:
-            low, info = lapack.dpotri(c, lower=1)  # S^-1 in the lower triangle, zeros above
+            low, info = lapack.dpotri(c, lower=1, overwrite_c=1)  # S^-1 in the lower triangle, zeros above
         if info != 0:
             raise np.linalg.LinAlgError(f"{self.name}: S = H P H^T + R is not positive definite (LAPACK info {info})")
-        # sum_ij (S^-1)_ij G_ij from the lower triangle (both symmetric)
-        return float(2.0 * np.sum(low * G) - np.dot(np.diagonal(low), np.diagonal(G)))
+        # sum_ij (S^-1)_ij G_ij from the lower triangle (both symmetric; G's rows are its columns)
+        return float(2.0 * np.dot(low.ravel(order="F"), G.ravel()) - np.dot(np.diagonal(low), np.diagonal(G)))
 
     def next_waypoint(self):
         import cma

@@ -25,27 +25,30 @@ How the gains are computed with ``search = "lowrank"`` (opt in: the default, ``"
 rows of the published boards until they are flown again). A tree state's covariance is the
 root's less the updates along its path, ``P = P0 - U U^T`` with ``U = [A_1 ... A_d]`` (n x r, r the
 read-out rows flown since the root; ``A_j A_j^T`` one leg's Kalman update, :func:`~ipp_bench.belief.gain_factor`).
-A state keeps ``U``, ``V = P0 D U`` (D: the ROI's diagonal mask) and ``K = U^T D U`` (r x r), never P.
-With the root terms of a leg (rows W on its cells, noise R) ``S0 = W P0 W^T + R`` and
-``G0 = W (P0 D P0) W^T``, its predicted reduction of Tr(P) over the ROI is ``Tr(S^-1 G)`` with
-
-    Y = W U,  Z = W V,  S = S0 - Y Y^T,  G = G0 - Z Y^T - Y Z^T + Y K Y^T,
-
-the reference's ``sum_r (HP)_r^T S^-1 (HP)_r`` (:func:`~ipp_bench.belief.trace_reductions`) regrouped.
-An expanded state with b legs of at most M rows over q cells costs O(q r^2 + nnz(W) r + b M^2 r) and
-one batch of b (M, M) inverses, instead of the reference's O(b M q n) batched gain; an edge appends the
-leg's block in O(n r m) instead of copying and downdating the n x n covariance (O(n^2 m)):
-``C = P H^T = P0 H^T - U Y^T``, ``A = C L^-T`` (``L L^T = S``), the matching block of V from
-``P0 D C = B0 H^T - V Y^T`` (``B0 = P0 D P0``, its rows computed once per decision as the search
-reaches them), and K's new row and corner from ``U^T D C = Z^T - K Y^T`` and ``C^T D C = G``. A child's
-factor is built only when its own gains are asked for (a rollout's last move, which crosses the
-horizon, never needs it). The quantities are the reference's in exact arithmetic and agree to
-round-off (~1e-15 of the largest gain); the root's gains are computed exactly as the reference computes
-them, so that legs that tie exactly there (mirror images, frequent at the start) are ordered alike.
-Deeper in the tree an exact tie can still be broken the other way by rounding, and the two searches
-then grow different trees (``tests/planners/test_search_fast.py`` compares them on real decision
-states; ``benchmarks/bench_search.py`` times them and counts identical moves). ``search =
-"reference"`` runs the direct form (:mod:`ipp_bench.planners.mcts_reference`).
+A state keeps only its edges' small terms (each leg's L^-1, with ``L L^T = S``, and ``Y = W U`` at the
+state it leaves) and ``K = U^T D U`` (r x r; D: the ROI's diagonal mask), never P nor U: the search only
+ever reads U and ``V = P0 D U`` on the q cells that the legs of the node being expanded see, and it
+rebuilds those rows edge by edge from the root, ``A_j = C_j L_j^-T`` with ``C_j = P0 H_j^T - U Y_j^T``
+and ``P0 D C_j = B0 H_j^T - V Y_j^T`` (``B0 = P0 D P0``, one product per decision), in O(q r^2) without
+touching the rest of the map. On those cells ``P_cc = P0_cc - Uc Uc^T`` and ``(P D P)_cc = B0_cc -
+Vc Uc^T - Uc Vc^T + Uc K Uc^T``, and a leg (rows W, noise R) reduces Tr(P) over the ROI by
+``Tr(S^-1 G)`` with ``S = W P_cc W^T + R`` and ``G = W (P D P)_cc W^T``: the reference's ``sum_r (HP)_r^T
+S^-1 (HP)_r`` (:func:`~ipp_bench.belief.trace_reductions`) regrouped. An expanded state with b legs over
+q cells costs O(q r^2 + q^2 r) and b Cholesky factorisations of at most M x M (compiled,
+:mod:`~ipp_bench.planners._search_kernels`), instead of the reference's O(b M q n) batched gain and its
+O(n^2 m) copy and downdate of the covariance per edge; an edge adds K's new row and corner, ``U^T D A
+= (Z^T - K Y^T) L^-T`` (``Z = W V``) and ``A^T D A = L^-1 G L^-T``. A child's terms are built only when
+its own gains are asked for (a rollout's last move, which crosses the horizon, never needs them). The
+quantities are the reference's in exact arithmetic and agree to round-off (~1e-15 of the largest gain);
+the root's gains are computed exactly as the reference computes them, so that legs that tie exactly
+there (mirror images, frequent at the start) are ordered alike. Deeper in the tree an exact tie can
+still be broken the other way by rounding, and the two searches then grow different trees
+(``tests/planners/test_search_fast.py`` compares them on real decision states;
+``benchmarks/bench_search.py`` times them and counts identical moves). ``search = "reference"`` runs
+the direct form (:mod:`ipp_bench.planners.mcts_reference`). A leg's read-outs come from the camera's
+compiled rows, a footprint looked at twice on one leg folded into one row with both looks' precision (the
+same posterior). The low-rank search needs numba (the ``eval`` extra); its kernels are compiled once per
+process, when the planner is first reset.
 """
 
 from __future__ import annotations
@@ -55,7 +58,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
 
 from ..belief import LegBatch, trace_reductions
 from ..config import check_integer, check_number
@@ -64,7 +66,7 @@ from .base import GraphPlanner, softmax, stacked_leg
 
 #: the most simulations per decision (a decision at 10^5 takes about half an hour)
 MAX_SIMULATIONS = 100_000
-#: how the gains are computed: the low-rank factor (default) or the dense reference
+#: how the gains are computed: the low-rank factor or the dense reference (the default)
 SEARCHES = ("lowrank", "reference")
 
 
@@ -114,62 +116,73 @@ class MCTSConfig:
             raise ValueError(f"mcts.search = {self.search!r} is invalid: expected one of {list(SEARCHES)}")
 
 
+def _near_ties(rates: np.ndarray) -> bool:
+    """Whether two of ``rates`` lie within rounding of each other (1e-9 of the largest), other than
+    exact zeros (legs that see nothing score exactly 0 in both searches)."""
+    r = np.sort(rates)
+    close = np.diff(r) <= 1e-9 * np.abs(r).max(initial=0.0)
+    return bool(np.any(close & ((r[1:] != 0.0) | (r[:-1] != 0.0))))
+
+
 class _Legs:
-    """A roadmap node's legs as the low-rank gains use them (static for an episode).
+    """A roadmap node's legs as the low-rank gains use them (static for an episode;
+    :func:`~ipp_bench.planners._search_kernels.node_legs`).
 
     Attributes:
-        batch: the legs padded to M rows (:class:`~ipp_bench.belief.LegBatch`; b of them see something).
-        row: (k,) the batch row of each action (-1: the leg sees nothing).
-        m: (b,) read-out rows of each leg (the rest of its M are padding: W = 0, unit variance).
-        Wq: (b M, q) sparse, the stacked rows W over the batch's cells; Wt: (b, q, M) dense, each leg's W^T.
-        cols: (2q,) the batch's cells, then the same offset by n: the rows of [U; V] on them.
+        size: k, the node's legs; index (b,): those that see something; row: (k,) each leg's place among
+            them (-1: the leg sees nothing).
+        cells: (q,) the cells they see, ascending; m: (b,) each one's read-out rows; M: the most rows;
+            var: (b, M) their noise variances (padding: 1).
+        pair_ptr, pair_cell, pair_w: for each leg j and pair of its rows (a, c), c <= a, the products
+            ``w_a[x] w_c[y]`` of their weights and the flat index ``x q + y`` of their cells in the q x q block.
+        nz: per leg, (row, index in ``cells``, weight) of its nonzero weights, and (row, map cell) concatenated.
+        batch: the legs as the reference scores them (:class:`~ipp_bench.belief.LegBatch`), built when first
+            asked for.
     """
 
-    __slots__ = ("batch", "row", "m", "Wq", "Wt", "b", "M", "cols")
+    __slots__ = ("size", "index", "row", "cells", "m", "M", "var", "pair_ptr", "pair_cell", "pair_w", "nz", "batch")
 
-    def __init__(self, batch: LegBatch, legs: list, n: int):
-        self.batch = batch
-        self.b = b = int(batch.index.size)
-        self.row = np.full(batch.size, -1, dtype=np.int64)
-        self.row[batch.index] = np.arange(b)
-        if not b:
-            return
-        self.M = M = batch.W.shape[1]
-        self.m = np.array([legs[i][1].shape[0] for i in batch.index])
-        q = batch.cells.size
-        flat = batch.W.reshape(b * M, q)
-        r, c = np.nonzero(flat)
-        w = flat[r, c]
-        self.Wq = sparse.csr_array((w, (r, c)), shape=(b * M, q))
-        self.Wt = np.ascontiguousarray(batch.W.transpose(0, 2, 1))
-        self.cols = np.concatenate([batch.cells, batch.cells + n])
-
-
-class _Factor:
-    """Rows of [U | V]^T, shared by a chain of states: a child appends its rows in place when no other
-    state has appended after its parent's (a rollout), else it copies (a second child in the tree)."""
-
-    __slots__ = ("rows", "used")
-
-    def __init__(self, capacity: int, width: int):
-        self.rows = np.empty((capacity, width))
-        self.used = 0
+    def __init__(self, legs: list, kernels):
+        self.size = len(legs)
+        self.batch = None
+        rows = [(0, 0) if leg is None else (leg[0].size - 1, leg[1].size) for leg in legs]
+        leg_rows = np.concatenate([[0], np.cumsum([r for r, _ in rows])]).astype(np.int64)
+        present = [leg for leg in legs if leg is not None]
+        if present:
+            offsets = np.cumsum([0] + [nnz for _, nnz in rows if nnz])[:-1]
+            row_ptr = np.concatenate([[0]] + [leg[0][1:] + o for leg, o in zip(present, offsets)]).astype(np.int64)
+            cells, weights, var = (np.concatenate([leg[i] for leg in present]) for i in (1, 2, 3))
+        else:
+            row_ptr, cells, weights, var = np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), \
+                np.zeros(0)
+        (self.index, self.cells, self.m, self.var, self.pair_ptr, self.pair_cell, self.pair_w, ptr, nz_row, nz_cell,
+         nz_w) = kernels.node_legs(leg_rows, row_ptr, cells.astype(np.int64), weights, var)
+        self.M = self.var.shape[1]
+        self.row = np.full(self.size, -1, dtype=np.int64)
+        self.row[self.index] = np.arange(self.index.size)
+        self.nz = []
+        for j in range(self.index.size):
+            a, x = nz_row[ptr[j]:ptr[j + 1]], nz_cell[ptr[j]:ptr[j + 1]]
+            self.nz.append((a, x, nz_w[ptr[j]:ptr[j + 1]], np.concatenate([a, self.cells[x]])))
 
 
 class _State:
-    """A tree or rollout state. Its factor (``buf``: [U | V]^T, and ``K``) is built when its gains are first
+    """A tree or rollout state. Its factor (the edges from the root, and ``K``) is set when its gains are first
     asked for."""
 
-    __slots__ = ("node", "parent", "action", "buf", "r", "K", "remaining", "elapsed", "costs", "order", "gains",
-                 "children", "visits", "Y", "T", "Q", "S", "Sinv")
+    __slots__ = ("node", "parent", "action", "header", "idata", "fdata", "r", "K", "remaining", "elapsed", "costs",
+                 "order", "gains", "children", "visits", "S", "G", "Ut", "Vt")
 
     def __init__(self, node: int, parent: _State | None, action: int, remaining: float, elapsed: float,
                  costs: np.ndarray):
         self.node = node
         self.parent = parent  # the state this one was reached from (None: the root)
         self.action = action  # the move from the parent
-        self.buf: _Factor | None = None  # its rows [:r] are [U | V]^T (r, 2n): U the factor, V = P0 D U
-        self.r = 0
+        # the edges from the root that saw something, as _search_kernels.state_terms reads them (None: not set)
+        self.header: np.ndarray | None = None
+        self.idata: np.ndarray | None = None
+        self.fdata: np.ndarray | None = None
+        self.r = 0  # columns of U: read-out rows flown since the root
         self.K: np.ndarray | None = None  # (r, r): U^T D U
         self.remaining = remaining  # [s] of budget
         self.elapsed = elapsed  # [s] flown since the root
@@ -178,9 +191,9 @@ class _State:
         self.gains: np.ndarray | None = None  # one-step reward per action
         self.children: dict[int, list] = {}  # action -> [child, reward, discount, visits, value sum]
         self.visits = 0
-        # of the gains, for the edges out of this state: Y = W U, T = (1/2) Y K - W V, Q = T Y^T + G0 / 2
-        # (G = Q + Q^T), S and S^-1, each (b, M, .) over the node's legs
-        self.Y = self.T = self.Q = self.S = self.Sinv = None
+        # of the gains, for the edges out of this state: S = W P W^T + R and G = W P D P W^T, each (b, M, M)
+        # over the node's legs, and the rows Ut = Uc^T, Vt = Vc^T (r, q) of U and V on the node's cells
+        self.S = self.G = self.Ut = self.Vt = None
 
 
 class MCTSPlanner(GraphPlanner):
@@ -192,6 +205,10 @@ class MCTSPlanner(GraphPlanner):
     def __init__(self, config: MCTSConfig | None = None):
         super().__init__(config or MCTSConfig())
         self._reference = None
+        if self.settings.search == "lowrank":
+            from ._search_kernels import require_numba
+
+            require_numba("mcts:search=lowrank")
 
     def reset(self, view, seed):
         view.require_dense_belief(self.name, "its search reads the full covariance of the belief (a window "
@@ -205,24 +222,44 @@ class MCTSPlanner(GraphPlanner):
             self._reference.reset(view, seed)
             self.rng = self._reference.rng
             return
+        from . import _search_kernels
+
+        _search_kernels.warm_up()  # compiled once per process, before the first decision's clock starts
+        self._kernels = _search_kernels
         self._legs: dict[tuple[int, int], tuple | None] = {}
         self._node_legs: dict[int, _Legs] = {}
+        self._camera = _search_kernels.camera_args(view.sensor)
+        self._roadmap = view.roadmap
+        self._spacing = view.config.mission.measurement_spacing
         self._costs: dict[int, np.ndarray] = {}
-        self._PB = None
+        self._B = None
 
     # -- the model: static per episode ---------------------------------------------------------
     def _leg(self, node: int, action: int):
+        """The read-outs of the leg ``node -> action`` as the mission would take them, in sparse rows
+        (:func:`~ipp_bench.planners._search_kernels.camera_rows`, repeated rows folded into one:
+        :func:`~ipp_bench.planners._search_kernels.fold_repeated_rows`); None where the camera sees nothing."""
         key = (node, action)
         if key not in self._legs:
-            self._legs[key] = stacked_leg(self.view, node, action)
+            rm = self._roadmap
+            k = self._kernels
+            points = k.leg_points(rm.positions[node], rm.positions[rm.neighbours[node, action]], self._spacing)
+            rows = k.fold_repeated_rows(*k.camera_rows(points, *self._camera))  # a footprint seen twice: one row
+            self._legs[key] = rows if rows[3].size else None
         return self._legs[key]
 
     def _legs_of(self, node: int) -> _Legs:
         legs = self._node_legs.get(node)
         if legs is None:
-            raw = [self._leg(node, a) for a in range(self.view.roadmap.k)]
-            legs = self._node_legs[node] = _Legs(LegBatch(raw), raw, self._n)
+            legs = self._node_legs[node] = _Legs([self._leg(node, a) for a in range(self._roadmap.k)], self._kernels)
         return legs
+
+    def _batch(self, node: int) -> LegBatch:
+        """The legs of ``node`` as the reference scores them (dense, stacked; cached)."""
+        legs = self._legs_of(node)
+        if legs.batch is None:
+            legs.batch = LegBatch([stacked_leg(self.view, node, a) for a in range(legs.size)])
+        return legs.batch
 
     def _node_costs(self, node: int) -> np.ndarray:
         """(k,) flight times [s] from node ``node`` to its neighbours (the mission's clock; cached)."""
@@ -233,118 +270,45 @@ class MCTSPlanner(GraphPlanner):
 
     # -- the model: per decision ---------------------------------------------------------------
     def _begin(self, roi: np.ndarray) -> None:
-        """The decision's root terms: P0 and the rows of B0 = P0 D P0 (filled as the search reaches them)."""
-        cov = self.view.belief.cov
-        n = self._n = cov.shape[0]
-        if getattr(self, "_PB", None) is None or self._PB.shape != (n, 2 * n):
-            self._PB = np.empty((n, 2 * n))  # [P0 | B0]: B0's row c is filled (and read) once cell c is reached
-        self._PB[:, :n] = cov
-        self._D = roi.astype(np.float64)  # the ROI's diagonal mask
-        self._filled = np.zeros(n, dtype=bool)
-        self._root_terms: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._edge_terms: dict[tuple[int, int], np.ndarray] = {}
-
-    def _fill_B0(self, cells: np.ndarray) -> None:
-        new = cells[~self._filled[cells]]
-        if new.size:
-            P0 = self._PB[:, :self._n]
-            self._PB[new, self._n:] = (P0[new] * self._D) @ P0  # B0[c, :] = (P0 D P0)[c, :]
-            self._filled[new] = True
-
-    def _node_terms(self, node: int, legs: _Legs) -> tuple[np.ndarray, np.ndarray]:
-        """(S0, G0), each (b, M, M): W P0 W^T + R and W B0 W^T per leg of ``node`` at the root."""
-        terms = self._root_terms.get(node)
-        if terms is None:
-            batch, b, M = legs.batch, legs.b, legs.M
-            self._fill_B0(batch.cells)
-            q = batch.cells.size
-            block = self._PB[np.ix_(batch.cells, legs.cols)]  # (q, 2q): [P0 | B0] on the cells
-            X = (legs.Wq @ block).reshape(b, M, 2, q)  # W P0 and W B0 on the cells, per leg
-            S0, G0 = X[:, :, 0] @ legs.Wt, X[:, :, 1] @ legs.Wt
-            idx = np.arange(M)
-            S0[:, idx, idx] += batch.var
-            terms = self._root_terms[node] = (S0, G0)
-        return terms
-
-    def _edge_term(self, node: int, action: int) -> np.ndarray:
-        """(m, 2n): [H P0 | H B0] of the leg ``node -> action`` (C^T and (P0 D C)^T at the root)."""
-        key = (node, action)
-        term = self._edge_terms.get(key)
-        if term is None:
-            cells, W, _ = self._leg(node, action)
-            term = self._edge_terms[key] = W @ self._PB[cells]
-        return term
+        """The decision's root terms: P0 and B0 = P0 D P0 (D: the ROI's diagonal mask; one product: a search
+        reaches most cells of the map)."""
+        self._P = np.ascontiguousarray(self.view.belief.cov)
+        self._B = self._kernels.roi_product(self._P, roi, self._B)
 
     def _materialise(self, state: _State) -> None:
-        """The factor of ``state``: its parent's with the block of the leg that led to it appended."""
+        """The factor of ``state``: its parent's with the edge that led to it appended (its L^-1 and Y = W U
+        from :func:`~ipp_bench.planners._search_kernels.edge_terms`)."""
         parent, a = state.parent, state.action
         legs = self._legs_of(parent.node)
         j = int(legs.row[a])
         if j < 0:  # the leg sees nothing: the same posterior
-            state.buf, state.r, state.K = parent.buf, parent.r, parent.K
+            state.header, state.idata, state.fdata = parent.header, parent.idata, parent.fdata
+            state.r, state.K = parent.r, parent.K
             return
         m = int(legs.m[j])
-        Sinv = parent.Sinv[j, :m, :m]
-        L = np.linalg.cholesky(parent.S[j, :m, :m])
-        Lit = Sinv @ L  # L^-T (= S^-1 L)
-        CT = self._edge_term(parent.node, a)  # (m, 2n): [C | P0 D C]^T at the root
-        r, buf = parent.r, parent.buf
-        if r:
-            Y, K = parent.Y[j, :m], parent.K  # (m, r): W U
-            CT = CT - Y @ buf.rows[:r]  # C = P0 H^T - U Y^T, P0 D C = B0 H^T - V Y^T
-            Q = parent.Q[j, :m, :m]
-            G = Q + Q.T
-            Z = 0.5 * (Y @ K) - parent.T[j, :m]  # W V
-            X = (Z.T - K @ Y.T) @ Lit  # U^T D A
-        else:
-            G = self._root_terms[parent.node][1][j, :m, :m]
-        AT = Lit.T @ CT  # (m, 2n): [A | P0 D A]^T
-        corner = Lit.T @ G @ Lit  # A^T D A
-        if buf.used != r or r + m > buf.rows.shape[0]:
-            old, buf = buf, _Factor(max(2 * (r + m), 64), CT.shape[1])
-            buf.rows[:r] = old.rows[:r]
-        buf.rows[r:r + m] = AT
-        buf.used = r + m
-        state.buf, state.r = buf, r + m
-        if r:
-            state.K = Kn = np.empty((r + m, r + m))
-            Kn[:r, :r], Kn[:r, r:], Kn[r:, :r], Kn[r:, r:] = K, X, X.T, corner
-        else:
-            state.K = corner
+        rows, cells, w, ints = legs.nz[j]
+        Linv, Y, state.K = self._kernels.edge_terms(parent.S[j], parent.G[j], m, rows, cells, w, parent.Ut, parent.Vt,
+                                                    parent.K)
+        r = parent.r
+        head = np.array([[m, r, w.size, parent.fdata.size, parent.idata.size]], dtype=np.int64)
+        state.header = np.concatenate([parent.header, head])
+        state.idata = np.concatenate([parent.idata, ints])
+        state.fdata = np.concatenate([parent.fdata, w, Linv.ravel(), Y.ravel()])
+        state.r = r + m
 
     def _gains(self, state: _State) -> np.ndarray:
         """(k,) predicted reductions of Tr(P) over the decision's ROI, one per leg out of ``state``."""
-        if state.buf is None:
+        if state.header is None:
             self._materialise(state)
         legs = self._legs_of(state.node)
-        out = np.zeros(legs.batch.size)
-        if not legs.b:
+        out = np.zeros(legs.size)
+        if not legs.index.size:
             return out
-        S0, G0 = self._node_terms(state.node, legs)
-        b, M = legs.b, legs.M
-        r = state.r
-        if r:
-            q = legs.batch.cells.size
-            Fb = np.take(state.buf.rows[:r], legs.cols, axis=1)  # (r, 2q): [U | V]^T on the batch's cells
-            Ub = Fb[:, :q].T
-            UT = np.empty((q, 2 * r))
-            UT[:, :r] = Ub
-            UT[:, r:] = 0.5 * (Ub @ state.K) - Fb[:, q:].T  # (1/2) U K - V
-            X = legs.Wq @ UT  # (b M, 2r): [Y | T], Y = W U, T = (1/2) Y K - Z, Z = W V
-            Y, T = X[:, :r].reshape(b, M, r), X[:, r:].reshape(b, M, r)
-            Yt = Y.transpose(0, 2, 1)
-            S = S0 - Y @ Yt
-            Q = T @ Yt  # G = G0 - Z Y^T - Y Z^T + Y K Y^T = G0 + Q + Q^T
-            Sinv = np.linalg.inv(S)
-            Q += 0.5 * G0
-            g = 2.0 * np.einsum("bij,bij->b", Sinv, Q)  # Tr(S^-1 G), S^-1 symmetric
-            state.Y, state.T, state.Q = Y, T, Q
-        else:
-            S = S0
-            Sinv = np.linalg.inv(S)
-            g = np.einsum("bij,bij->b", Sinv, G0)
-        state.S, state.Sinv = S, Sinv
-        out[legs.batch.index] = g
+        g, state.S, state.G, state.Ut, state.Vt = self._kernels.state_terms(
+            self._P, self._B, state.header, state.idata, state.fdata, state.r, legs.cells, state.K, legs.m,
+            legs.pair_ptr,
+            legs.pair_cell, legs.pair_w, legs.var, legs.M)
+        out[legs.index] = g
         return out
 
     def _expand_info(self, state: _State) -> None:
@@ -355,17 +319,17 @@ class MCTSPlanner(GraphPlanner):
             return
         actions = np.flatnonzero(self.view.fits_budget(costs, state.remaining))
         gains = self._gains(state)
-        if state.parent is None:
-            # the root's gains as the reference computes them (its Kalman terms stay for the edges): the
-            # same bits, so the same order where legs tie exactly (mirror images, often at the start)
-            gains = trace_reductions(self.view.belief.cov, self._legs_of(state.node).batch, self._roi)
+        if state.parent is None and _near_ties(gains[actions] / costs[actions]):
+            # legs that tie at the root (mirror images, often at the start): their gains as the reference
+            # computes them (the Kalman terms above stay for the edges), the same bits, so the same order
+            gains = trace_reductions(self.view.belief.cov, self._batch(state.node), self._roi)
         state.gains = gains / self._unit
         rate = state.gains[actions] / costs[actions]
         state.order = actions[np.lexsort((actions, -rate))]
 
     def _transition(self, state: _State, action: int) -> tuple[_State, float, float]:
         """(next state, reward, discount): the move crossing the horizon counts pro rata."""
-        rm = self.view.roadmap
+        rm = self._roadmap
         cost = float(state.costs[action])
         cfg = self.settings
         share = min(1.0, (cfg.horizon_s - state.elapsed) / cost)
@@ -428,7 +392,8 @@ class MCTSPlanner(GraphPlanner):
         self._unit = 1.0
         # from where the robot is (on the graph tasks, exactly the node; in MuJoCo, near it)
         root = _State(node, None, -1, view.remaining_s, 0.0, view.neighbour_durations(node, view.position))
-        root.buf, root.K = _Factor(64, 2 * self._n), np.zeros((0, 0))
+        root.header, root.K = np.zeros((0, 5), dtype=np.int64), np.zeros((0, 0))
+        root.idata, root.fdata = np.zeros(0, dtype=np.int64), np.zeros(0)
         self._expand_info(root)
         if root.order.size == 0:
             raise ValueError(f"{self.name}: no affordable neighbour; the episode should have ended")

@@ -1,9 +1,11 @@
 """The look-ahead planners' fast evaluations against their references, on real decision states.
 
-``mcts`` (gains from a low-rank factor of the updates along the tree path) against
-``mcts:search=reference`` (a dense covariance copied and downdated per edge), and ``cmaes``'s batched
-scoring of a population (from B = P D P) against ``cmaes:evaluation=reference`` (each candidate's
-Kalman prediction): the same gains in exact arithmetic, so equal to round-off, and the same moves.
+``mcts:search=lowrank`` (gains from a low-rank factor of the updates along the tree path, compiled) against
+``mcts:search=reference`` (a dense covariance copied and downdated per edge), and
+``cmaes:evaluation=batched`` (a candidate's read-outs as compiled sparse rows, scored from B = P D P)
+against ``cmaes:evaluation=reference`` (each candidate's Kalman prediction): the same gains in exact
+arithmetic, so equal to round-off, and the same moves; and the compiled kernels against the camera and
+the dense algebra they stand for.
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ import numpy as np
 import pytest
 
 from ipp_bench.envs import make_env
-from ipp_bench.planners import make_planner, view_for
+from ipp_bench.planners import _search_kernels, make_planner, view_for
+from ipp_bench.sensor import Sensor
 
 TASKS_15 = ["ipp_bench/Grid15Eval-v1", "ipp_bench/Hotspots15Eval-v2"]
 TASKS_30 = ["ipp_bench/Grid30Eval-v1", "ipp_bench/Hotspots30Eval-v2"]
@@ -47,7 +50,7 @@ def _paths(rng, planner, root, depth: int, count: int):
     return out
 
 
-@pytest.mark.parametrize("task", TASKS_15)
+@pytest.mark.parametrize("task", TASKS_15 + TASKS_30[1:])
 def test_lowrank_gains_equal_the_dense_reference_along_tree_paths(task):
     env, obs = _episode(task, seed=7)
     fast = make_planner("mcts:simulations=4,horizon_s=1000,search=lowrank")  # a long horizon: gains at every depth
@@ -126,6 +129,33 @@ def test_lowrank_search_is_deterministic_per_seed():
     assert moves[0] == moves[1]
 
 
+def test_fast_searches_without_numba_name_the_extra(monkeypatch):
+    monkeypatch.setattr(_search_kernels, "numba", None)
+    for spec in ("mcts:search=lowrank", "cmaes:evaluation=batched"):
+        with pytest.raises(ImportError, match=r'needs numba: pip install "ipp-bench\[eval\]"'):
+            make_planner(spec)
+    make_planner("mcts")  # the references need no numba
+    make_planner("cmaes")
+
+
+def test_no_kernel_compiles_inside_a_decision():
+    """The kernels are compiled when a fast planner is reset, for the argument types the decisions pass
+    (read-only camera arrays, int64 indices): a decision never waits for numba."""
+    numba = pytest.importorskip("numba")
+    _search_kernels.warm_up()
+    kernels = {name: f for name, f in vars(_search_kernels).items() if isinstance(f, numba.core.registry.CPUDispatcher)}
+    compiled = {name: len(f.signatures) for name, f in kernels.items()}
+    for task in ("ipp_bench/Grid15Eval-v1", "ipp_bench/Hotspots30Eval-v2"):
+        _episode(task, seed=3, spec="mcts:simulations=6,search=lowrank", steps=2)  # the MCTS kernels
+        env = make_env(task)
+        env.reset(seed=3)
+        planner = make_planner("cmaes:max_evals=24,evaluation=batched")
+        planner.reset(view_for(planner, env.unwrapped), 3)
+        for _ in range(2):
+            env.unwrapped.mission.fly_to(planner.next_waypoint())
+    assert {name: len(f.signatures) for name, f in kernels.items()} == compiled
+
+
 @pytest.mark.parametrize("spec, message", [
     ("mcts:search=dense", r"mcts.search = 'dense' is invalid: expected one of \['lowrank', 'reference'\]"),
     ("cmaes:evaluation=fast", r"cmaes.evaluation = 'fast' is invalid: expected one of \['batched', 'reference'\]"),
@@ -136,6 +166,74 @@ def test_search_setting_is_checked(spec, message):
 
 
 # -- CMA-ES --------------------------------------------------------------------------------------------
+def _rows_of(observations) -> list:
+    """Each read-out row of ``observations`` as (map cells, weights) of its nonzero weights, and its variance."""
+    out = []
+    for o in observations:
+        for a in range(o.m):
+            nz = o.weights[a] != 0
+            out.append((o.cells[nz], o.weights[a][nz], o.var[a]))
+    return out
+
+
+@pytest.mark.parametrize("task", ["ipp_bench/Grid15Eval-v1", "ipp_bench/Hotspots30Eval-v2"])
+@pytest.mark.parametrize("persistent", [False, True])
+def test_camera_rows_are_the_cameras_read_outs(task, persistent):
+    """Compiled read-out rows from many positions (some off the map, below and above the binning altitude)
+    against :meth:`Sensor.observe`, row by row: the same cells and weights, the same variance."""
+    import dataclasses
+
+    env = make_env(task)
+    env.reset(seed=0)
+    base = env.unwrapped.mission.sensor
+    cfg = base.cfg
+    if persistent:  # the camera-error model: a persistent share, correlated over a binned block
+        cfg = dataclasses.replace(cfg, persistent_var=0.01, persistent_var_binned=0.02,
+                                  persistent_neighbour_corr=0.59)
+    sensor = Sensor(base.grid, cfg)
+    width, height = env.unwrapped.config.grid.size_m
+    alts = env.unwrapped.config.graph.altitudes
+    assert alts[0] <= cfg.binning_altitude < alts[-1]  # both kinds of read-out
+    rng = np.random.default_rng(1)
+    compared = 0
+    for _ in range(20):
+        pts = np.column_stack([rng.uniform(-8, width + 8, 25), rng.uniform(-8, height + 8, 25),
+                               rng.uniform(alts[0], alts[-1], 25)])
+        ptr, cells, weights, var = _search_kernels.camera_rows(pts, *_search_kernels.camera_args(sensor))
+        expected = _rows_of([o for o in (sensor.observe(p) for p in pts) if o is not None])
+        assert len(expected) == var.size == ptr.size - 1
+        for a, (c, w, v) in enumerate(expected):
+            np.testing.assert_array_equal(cells[ptr[a]:ptr[a + 1]], c)
+            np.testing.assert_array_equal(weights[ptr[a]:ptr[a + 1]], w)
+            np.testing.assert_allclose(var[a], v, rtol=1e-14)
+        compared += len(expected)
+    assert compared > 1000
+
+
+def test_readout_blocks_are_the_dense_products():
+    """S = H P H^T + R and G = H B H^T from sparse rows, against dense algebra on a random covariance."""
+    rng = np.random.default_rng(3)
+    n = 40
+    A = rng.standard_normal((n, n))
+    P = A @ A.T / n + 0.1 * np.eye(n)
+    roi = rng.random(n) < 0.6
+    B = P[:, roi] @ P[roi, :]
+    ptr = np.array([0, 1, 5, 7, 8], dtype=np.int64)  # a single cell, a 2 x 2 block, a pair, a cell seen again
+    cells = np.array([3, 10, 11, 20, 21, 7, 3, 10], dtype=np.int64)
+    weights = np.array([1.0, 0.25, 0.25, 0.25, 0.25, 0.5, 0.5, 1.0])
+    var = np.array([0.1, 0.2, 0.3, 0.4])
+    H = np.zeros((4, n))
+    for a in range(4):
+        np.add.at(H[a], cells[ptr[a]:ptr[a + 1]], weights[ptr[a]:ptr[a + 1]])
+    S, G = _search_kernels.readout_blocks(P, B, ptr, cells, weights, var)
+    np.testing.assert_allclose(S, H @ P @ H.T + np.diag(var), rtol=1e-13)
+    np.testing.assert_allclose(G, H @ B @ H.T, rtol=1e-13)
+    # Tr(S^-1 G) is the reduction of the ROI's trace by the Kalman update
+    post = P - P @ H.T @ np.linalg.solve(S, H @ P)
+    np.testing.assert_allclose(np.trace(np.linalg.solve(S, G)), np.trace(P[roi][:, roi]) - np.trace(post[roi][:, roi]),
+                               rtol=1e-10)
+
+
 def _cmaes_at(task: str, seed: int, decisions: int):
     """(env, batched planner, reference planner) after ``decisions`` waypoints flown by the reference."""
     env = make_env(task)
@@ -150,6 +248,31 @@ def _cmaes_at(task: str, seed: int, decisions: int):
     return env, new, ref
 
 
+def test_folding_repeated_rows_keeps_the_posterior():
+    """A row seen twice (same cells and weights) becomes one with both looks' precision: the same predicted
+    reduction, to round-off; other rows stay as they are, in order."""
+    rng = np.random.default_rng(5)
+    n = 30
+    A = rng.standard_normal((n, n))
+    P = A @ A.T / n + 0.1 * np.eye(n)
+    roi = rng.random(n) < 0.7
+    B = P[:, roi] @ P[roi, :]
+    ptr = np.array([0, 4, 5, 9, 10, 11], dtype=np.int64)  # a block, a cell, the block again, another cell, the cell
+    cells = np.array([1, 2, 7, 8, 4, 1, 2, 7, 8, 5, 4], dtype=np.int64)
+    weights = np.array([0.25] * 4 + [1.0] + [0.25] * 4 + [1.0, 1.0])
+    var = np.array([0.3, 0.1, 0.5, 0.2, 0.4])
+    f_ptr, f_cells, f_w, f_var = _search_kernels.fold_repeated_rows(ptr, cells, weights, var)
+    np.testing.assert_array_equal(f_ptr, [0, 4, 5, 6])
+    np.testing.assert_array_equal(f_cells, [1, 2, 7, 8, 4, 5])
+    np.testing.assert_allclose(f_var, [1 / (1 / 0.3 + 1 / 0.5), 1 / (1 / 0.1 + 1 / 0.4), 0.2], rtol=1e-15)
+
+    def reduction(*rows):
+        S, G = _search_kernels.readout_blocks(P, B, *rows)
+        return np.trace(np.linalg.solve(S, G))
+
+    np.testing.assert_allclose(reduction(f_ptr, f_cells, f_w, f_var), reduction(ptr, cells, weights, var), rtol=1e-12)
+
+
 @pytest.mark.parametrize("task", TASKS_15 + TASKS_30[1:])
 def test_cmaes_batched_objective_equals_the_reference(task):
     env, new, ref = _cmaes_at(task, seed=4, decisions=2)
@@ -159,7 +282,7 @@ def test_cmaes_batched_objective_equals_the_reference(task):
         planner._before = planner.view.roi_trace(planner._belief.variance, planner._roi)
         planner._lo, planner._hi = planner._search_box()
         planner._begin_batched()
-    assert new._PB is not None and ref._PB is None
+    assert new._P is not None and ref._P is None
     cands = np.random.default_rng(1).random((12, 3 * new.settings.n_waypoints))
     f_ref = np.array([ref._objective(c) for c in cands])
     f_new = np.array(new._objectives(list(cands)))

@@ -25,7 +25,7 @@ from gymnasium.utils import seeding
 from pettingzoo import AECEnv
 
 from .. import metrics as M
-from ..config import IPPConfig, invalid
+from ..config import TIME_TOL_S, IPPConfig, invalid
 from ..fields import make_field
 from ..mission import cell_to_xyz
 from ..team import TeamConfig, TeamMission
@@ -51,6 +51,7 @@ class UAVEnv(GraphIPPEnv):
         self.mission = None
         self.current_node = 0
         self.episode_seed = None
+        self.off_roadmap = False  # flown to a waypoint off the roadmap (a continuous planner's UAV)
 
     def action_masks(self) -> np.ndarray:
         return self.team_env.uav_mask(self.index)
@@ -144,7 +145,7 @@ class TeamGraphEnv(AECEnv):
                                    [self.team.member_config(self.config, i) for i in range(self.team.size)],
                                    sensor=self.sensor)
         for seat, member, node in zip(self.seats, self.mission.members, nodes):
-            seat.mission, seat.current_node, seat.episode_seed = member, node, seed
+            seat.mission, seat.current_node, seat.episode_seed, seat.off_roadmap = member, node, seed, False
         self.agents = self.possible_agents[:]
         self.rewards = {a: 0.0 for a in self.agents}
         self._cumulative_rewards = {a: 0.0 for a in self.agents}
@@ -242,6 +243,7 @@ class TeamGraphEnv(AECEnv):
         self._cumulative_rewards[agent] = 0.0
         seat.mission.fly_to(xyz)
         seat.current_node = self.roadmap.nearest_node(seat.mission.position)
+        seat.off_roadmap = True  # its planner, not the roadmap's mask, says when it is done (retire)
         self._after_leg()
 
     def retire(self) -> None:
@@ -252,10 +254,15 @@ class TeamGraphEnv(AECEnv):
     def _after_leg(self) -> None:
         """Terminate the UAVs that can fly no more, fuse up to the next decision, pay the team's reward."""
         for a in self.agents:
-            i = self.uav_index(a)
-            if not self.terminations[a] and not self.seats[i].mission.affordable(
-                    self.roadmap.positions[self.roadmap.neighbours[self.seats[i].current_node]]).any():
-                self.terminations[a] = True
+            seat = self.seats[self.uav_index(a)]
+            if self.terminations[a]:
+                continue
+            if seat.off_roadmap:
+                done = seat.mission.remaining_s <= TIME_TOL_S
+            else:
+                nbrs = self.roadmap.positions[self.roadmap.neighbours[seat.current_node]]
+                done = not seat.mission.affordable(nbrs).any()
+            self.terminations[a] = done
         live = [a for a in self.agents if not self.terminations[a]]
         before = M.trace_roi(self.mission.belief.variance, self._roi)
         if live:

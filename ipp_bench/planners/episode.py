@@ -263,8 +263,12 @@ def fly_team_episode(env, planner: str | Any, seed: int, *, options: dict | None
             env.step(action)
         else:
             action = _decide(agent.next_waypoint, label)
-            times.append(time.perf_counter() - t0)
-            env.retire() if action is None else env.fly_waypoint(action)
+            wall = time.perf_counter() - t0
+            if action is None:  # this UAV is done: not a decision (as the single-UAV loop counts)
+                env.retire()
+                continue
+            times.append(wall)
+            env.fly_waypoint(action)
         reward = env.rewards.get(name, 0.0)
         total += reward
         if on_decision is not None:

@@ -94,10 +94,12 @@ def test_attention_flies_each_uav_of_a_team():
 @pytest.mark.parametrize("team, single", [("team-greedy", "greedy"), ("team-coverage", "coverage"),
                                           ("team-oracle", "oracle")])
 def test_on_one_uav_a_team_aware_planner_flies_as_its_single_uav_counterpart(team, single):
-    env = make_env("ipp_bench/Hotspots30Eval-v2", budget_s=60, report_times=[30, 60])
-    assert fly_episode(env, team, 5).report == fly_episode(env, single, 5).report
-    one = make_env(TEAM2, budget_s=60, report_times=[30, 60], team={"size": 1, "starts": None})
-    assert fly_episode(one, team, 5).report == fly_episode(env, single, 5).report  # the team env of one UAV too
+    env = make_env("ipp_bench/Hotspots30Eval-v2", budget_s=80, report_times=[40, 80])
+    alone = fly_episode(env, single, 5)
+    assert fly_episode(env, team, 5).report == alone.report
+    one = make_env(TEAM2, budget_s=80, report_times=[40, 80], team={"size": 1, "starts": None})
+    in_team = fly_episode(one, team, 5)  # the team env of one UAV too, to the end of the budget
+    assert in_team.report == alone.report and in_team.decisions == alone.decisions
 
 
 def test_only_the_team_oracle_reads_the_truth():

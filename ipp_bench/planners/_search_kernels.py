@@ -5,7 +5,8 @@
   the decision's B = P D P;
 - MCTS (:mod:`ipp_bench.planners.mcts`, ``search = "lowrank"``): :func:`node_legs` lays out a node's legs
   (once per node and episode), :func:`state_terms` scores every leg out of one tree state from the
-  state's low-rank factor and :func:`edge_terms` adds one edge to it;
+  state's low-rank factor, :func:`child_terms` does the same from the terms of the state's parent, and
+  :func:`edge_terms` adds one edge to the factor;
 - CMA-ES (:mod:`ipp_bench.planners.cmaes`, ``evaluation = "batched"``): :func:`readout_blocks` gives the
   S and G of a candidate path's predicted gain ``Tr(S^-1 G)``.
 
@@ -185,6 +186,28 @@ def _leg_blocks(Pf, Bf, j, M, m, pair_ptr, pair_cell, pair_w, var, S, G):
 
 
 @_jit
+def _edge_rows(P, B, header, idata, fdata, e, cells, UV):
+    """Edge ``e``'s block of ``UV`` = [Ut | Vt] on the q cells ``cells``: its rows ``r_e`` to ``r_e + m`` from
+    the rows before it (:func:`_factor_rows` reads the edges)."""
+    q = cells.size
+    m, re, nnz, fo, io = header[e, 0], header[e, 1], header[e, 2], header[e, 3], header[e, 4]
+    E = np.zeros((m, 2 * q))  # [(H P0)[:, c] | (H B0)[:, c]]
+    for p in range(nnz):
+        a = idata[io + p]
+        rowP = P[idata[io + nnz + p]]
+        rowB = B[idata[io + nnz + p]]
+        w = fdata[fo + p]
+        for i in range(q):
+            E[a, i] += w * rowP[cells[i]]
+            E[a, q + i] += w * rowB[cells[i]]
+    Linv = fdata[fo + nnz:fo + nnz + m * m].reshape((m, m))
+    if re > 0:
+        Y = fdata[fo + nnz + m * m:fo + nnz + m * m + m * re].reshape((m, re))
+        E -= np.dot(Y, UV[:re])
+    UV[re:re + m] = np.dot(Linv, E)
+
+
+@_jit
 def _factor_rows(P, B, header, idata, fdata, r, cells):
     """Ut, Vt (r, q): the rows of U^T and V^T = (P0 D U)^T on the q cells ``cells``, rebuilt edge by edge.
 
@@ -197,24 +220,28 @@ def _factor_rows(P, B, header, idata, fdata, r, cells):
     q = cells.size
     UV = np.empty((r, 2 * q))  # [Ut | Vt]
     for e in range(header.shape[0]):
-        m, re, nnz, fo, io = header[e, 0], header[e, 1], header[e, 2], header[e, 3], header[e, 4]
-        E = np.zeros((m, 2 * q))  # [(H P0)[:, c] | (H B0)[:, c]]
-        for p in range(nnz):
-            a = idata[io + p]
-            rowP = P[idata[io + nnz + p]]
-            rowB = B[idata[io + nnz + p]]
-            w = fdata[fo + p]
-            for i in range(q):
-                E[a, i] += w * rowP[cells[i]]
-                E[a, q + i] += w * rowB[cells[i]]
-        Linv = fdata[fo + nnz:fo + nnz + m * m].reshape((m, m))
-        if re > 0:
-            Y = fdata[fo + nnz + m * m:fo + nnz + m * m + m * re].reshape((m, re))
-            E -= np.dot(Y, UV[:re])
-        UV[re:re + m] = np.dot(Linv, E)
+        _edge_rows(P, B, header, idata, fdata, e, cells, UV)
     Ut = np.ascontiguousarray(UV[:, :q])
     Vt = np.ascontiguousarray(UV[:, q:])
     return Ut, Vt
+
+
+@_jit
+def _legs_gains(Pcc, Bcc, leg_m, pair_ptr, pair_cell, pair_w, var, M):
+    """Each leg's gain Tr(S^-1 G) and its S, G (b, M, M) from P and P D P on the node's cells."""
+    b = leg_m.size
+    Pf = Pcc.ravel()
+    Bf = Bcc.ravel()
+    gains = np.empty(b)
+    S = np.zeros((b, M, M))
+    G = np.zeros((b, M, M))
+    Linv = np.empty((M, M))
+    for j in range(b):
+        m = leg_m[j]
+        _leg_blocks(Pf, Bf, j, M, m, pair_ptr, pair_cell, pair_w, var, S[j], G[j])
+        _cholesky_inverse(S[j], m, Linv)
+        gains[j] = _trace_inv_product(Linv, G[j], m)
+    return gains, S, G
 
 
 @_jit
@@ -229,10 +256,10 @@ def state_terms(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_c
     W P_cc W^T + R``, ``G = W B_cc W^T`` and gain ``Tr(S^-1 G)``: the reduction of Tr(P) over the ROI D.
 
     Returns:
-        gains (b,); S and G, each (b, M, M) (zero past each leg's ``leg_m`` rows); Uc^T and Vc^T, each (r, q).
+        gains (b,); S and G, each (b, M, M) (zero past each leg's ``leg_m`` rows); Uc^T and Vc^T, each (r, q);
+        P_cc and B_cc (q, q) (what :func:`child_terms` starts from).
     """
     q = cells.size
-    b = leg_m.size
     Ut, Vt = _factor_rows(P, B, header, idata, fdata, r, cells)
     Pcc = np.empty((q, q))
     Bcc = np.empty((q, q))
@@ -250,18 +277,145 @@ def state_terms(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_c
             for k in range(q):
                 Pcc[i, k] -= prod[i, k]
                 Bcc[i, k] += prod[i, q + k] + prod[k, q + i]
-    Pf = Pcc.ravel()
-    Bf = Bcc.ravel()
-    gains = np.empty(b)
-    S = np.zeros((b, M, M))
-    G = np.zeros((b, M, M))
-    Linv = np.empty((M, M))
-    for j in range(b):
-        m = leg_m[j]
-        _leg_blocks(Pf, Bf, j, M, m, pair_ptr, pair_cell, pair_w, var, S[j], G[j])
-        _cholesky_inverse(S[j], m, Linv)
-        gains[j] = _trace_inv_product(Linv, G[j], m)
-    return gains, S, G, Ut, Vt
+    gains, S, G = _legs_gains(Pcc, Bcc, leg_m, pair_ptr, pair_cell, pair_w, var, M)
+    return gains, S, G, Ut, Vt, Pcc, Bcc
+
+
+@_jit
+def child_terms(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_cell, pair_w, var, M, pcells, pUt,
+                pVt, pPcc, pBcc, eS, eG, em, erows, ecells, ew, eints):
+    """:func:`state_terms` of a state from its parent's terms, with the edge that leads to it.
+
+    ``header``, ``idata``, ``fdata``, ``r`` and ``K`` are the parent's factor, ``pcells`` the parent node's
+    cells (ascending), ``pUt``, ``pVt`` (r_p, q_p) the rows of U^T and V^T there and ``pPcc``, ``pBcc`` P
+    and P D P there. The edge is the parent's leg of ``em`` rows (0: it sees nothing, the factor stays)
+    with the parent's ``eS``, ``eG`` of that leg and its weights (row ``erows``, index ``ecells`` among
+    ``pcells``, value ``ew``; ``eints`` = rows, then map cells): :func:`edge_terms` adds it to the factor.
+
+    Returns:
+        what :func:`state_terms` returns, then the state's factor: header, idata, fdata, K.
+    """
+    if em > 0:
+        Linv, Y, K = edge_terms(eS, eG, em, erows, ecells, ew, pUt, pVt, K)
+        h = header.shape[0]
+        nnz = ew.size
+        head = np.empty((h + 1, 5), dtype=np.int64)
+        head[:h] = header
+        head[h, 0], head[h, 1], head[h, 2], head[h, 3], head[h, 4] = em, r, nnz, fdata.size, idata.size
+        header = head
+        idata = np.concatenate((idata, eints))
+        fo = fdata.size
+        fnew = np.empty(fo + nnz + em * em + em * r)
+        fnew[:fo] = fdata
+        fnew[fo:fo + nnz] = ew
+        fnew[fo + nnz:fo + nnz + em * em] = Linv.ravel()
+        fnew[fo + nnz + em * em:] = Y.ravel()
+        fdata = fnew
+        r = r + em
+    gains, S, G, Ut, Vt, Pcc, Bcc = _from_parent(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_cell,
+                                                 pair_w, var, M, pcells, pUt, pVt, pPcc, pBcc)
+    return gains, S, G, Ut, Vt, Pcc, Bcc, header, idata, fdata, K
+
+
+@_jit
+def _from_parent(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_cell, pair_w, var, M, pcells, pUt,
+                 pVt, pPcc, pBcc):
+    """:func:`state_terms` of a state (its factor: ``header`` to ``K``) from its parent's terms: ``pcells`` the
+    parent node's cells (ascending), ``pUt``, ``pVt`` (r_p, q_p) the rows of U^T and V^T there and ``pPcc``,
+    ``pBcc`` P and P D P there.
+
+    The rows of U, V, P and P D P on the cells both nodes' legs see are the parent's; those on the other
+    cells are rebuilt from the root (:func:`_factor_rows`; ``P_ik = P0_ik - U_i U_k`` and ``(P D P)_ik =
+    B0_ik + (K U_i - V_i) U_k - U_i V_k``), and the edge from the parent (if it saw something: rows A of U,
+    P0 D A of V, r_p to r) then updates them: ``P -= A A^T`` and ``P D P += A T^T + T A^T`` with ``T =
+    A K_aa / 2 + U K_ua - P0 D A`` (K_aa, K_ua: K's new corner and column block).
+    """
+    q = cells.size
+    qp = pcells.size
+    rp = pUt.shape[0]
+    pos = np.empty(q, dtype=np.int64)  # each cell's index among the parent's (-1: not there)
+    qn = 0
+    for i in range(q):
+        t = np.searchsorted(pcells, cells[i])
+        if t < qp and pcells[t] == cells[i]:
+            pos[i] = t
+        else:
+            pos[i] = -1
+            qn += 1
+    fresh = np.empty(qn, dtype=np.int64)  # indices (among ``cells``) of the cells the parent did not see
+    t = 0
+    for i in range(q):
+        if pos[i] < 0:
+            fresh[t] = i
+            t += 1
+    UV = np.empty((r, 2 * q))  # [Ut | Vt]
+    if rp > 0:
+        Un = np.empty((rp, 0))
+        Vn = np.empty((rp, 0))
+        if qn > 0:
+            edges = header.shape[0] - (1 if r > rp else 0)
+            Un, Vn = _factor_rows(P, B, header[:edges], idata, fdata, rp, cells[fresh])
+        t = 0
+        for i in range(q):
+            if pos[i] >= 0:
+                for k in range(rp):
+                    UV[k, i] = pUt[k, pos[i]]
+                    UV[k, q + i] = pVt[k, pos[i]]
+            else:
+                for k in range(rp):
+                    UV[k, i] = Un[k, t]
+                    UV[k, q + i] = Vn[k, t]
+                t += 1
+    Pcc = np.empty((q, q))
+    Bcc = np.empty((q, q))
+    for i in range(q):
+        if pos[i] < 0:
+            continue
+        for k in range(q):
+            if pos[k] >= 0:
+                Pcc[i, k] = pPcc[pos[i], pos[k]]
+                Bcc[i, k] = pBcc[pos[i], pos[k]]
+    if qn > 0:
+        rowsP = np.empty((qn, q))
+        rowsB = np.empty((qn, q))
+        for t in range(qn):
+            c = cells[fresh[t]]
+            for k in range(q):
+                rowsP[t, k] = P[c, cells[k]]
+                rowsB[t, k] = B[c, cells[k]]
+        if rp > 0:
+            Ut = np.ascontiguousarray(UV[:rp, :q])
+            Vt = np.ascontiguousarray(UV[:rp, q:])
+            UnT = np.ascontiguousarray(Ut[:, fresh].T)  # (qn, rp)
+            # (K U_i - V_i)^T, K symmetric
+            WnT = np.dot(UnT, np.ascontiguousarray(K[:rp, :rp])) - np.ascontiguousarray(Vt[:, fresh].T)
+            rowsP -= np.dot(UnT, Ut)
+            rowsB += np.dot(WnT, Ut) - np.dot(UnT, Vt)
+        for t in range(qn):
+            i = fresh[t]
+            for k in range(q):
+                Pcc[i, k] = rowsP[t, k]
+                Pcc[k, i] = rowsP[t, k]
+                Bcc[i, k] = rowsB[t, k]
+                Bcc[k, i] = rowsB[t, k]
+    if r > rp:
+        _edge_rows(P, B, header, idata, fdata, header.shape[0] - 1, cells, UV)
+        A = np.ascontiguousarray(UV[rp:, :q])  # (m, q)
+        T = 0.5 * np.dot(np.ascontiguousarray(K[rp:, rp:]), A) - UV[rp:, q:]
+        if rp > 0:
+            T += np.dot(np.ascontiguousarray(K[:rp, rp:]).T, np.ascontiguousarray(UV[:rp, :q]))
+        AA = np.dot(A.T, A)
+        AT = np.dot(A.T, T)
+        for i in range(q):
+            for k in range(i + 1):
+                p = Pcc[i, k] - AA[i, k]
+                g = Bcc[i, k] + AT[i, k] + AT[k, i]
+                Pcc[i, k] = p
+                Pcc[k, i] = p
+                Bcc[i, k] = g
+                Bcc[k, i] = g
+    gains, S, G = _legs_gains(Pcc, Bcc, leg_m, pair_ptr, pair_cell, pair_w, var, M)
+    return gains, S, G, np.ascontiguousarray(UV[:, :q]), np.ascontiguousarray(UV[:, q:]), Pcc, Bcc
 
 
 @_jit
@@ -534,7 +688,10 @@ def warm_up() -> None:
     K = np.zeros((0, 0))
     for _ in range(2):
         r = K.shape[0]
-        g, S, G, Ut, Vt = state_terms(P, P, header, idata, fdata, r, cells, K, leg_m, ptr, cell, w, var, 2)
+        g, S, G, Ut, Vt, Pcc, Bcc = state_terms(P, P, header, idata, fdata, r, cells, K, leg_m, ptr, cell, w, var, 2)
+        for em in (0, 1):
+            child_terms(P, P, header, idata, fdata, r, cells[::-1].copy(), K, leg_m, ptr, cell, w, var, 2, cells, Ut,
+                        Vt, Pcc, Bcc, S[0], G[0], em, cell, cell, w, np.zeros(2, dtype=np.int64))
         Linv, Y, K = edge_terms(S[0], G[0], 1, cell, cell, w, Ut, Vt, K)
         header = np.array([[1, r, 1, 0, 0]], dtype=np.int64)
         idata = np.array([0, 0], dtype=np.int64)

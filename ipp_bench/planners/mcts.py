@@ -33,11 +33,16 @@ and ``P0 D C_j = B0 H_j^T - V Y_j^T`` (``B0 = P0 D P0``, one product per decisio
 touching the rest of the map. On those cells ``P_cc = P0_cc - Uc Uc^T`` and ``(P D P)_cc = B0_cc -
 Vc Uc^T - Uc Vc^T + Uc K Uc^T``, and a leg (rows W, noise R) reduces Tr(P) over the ROI by
 ``Tr(S^-1 G)`` with ``S = W P_cc W^T + R`` and ``G = W (P D P)_cc W^T``: the reference's ``sum_r (HP)_r^T
-S^-1 (HP)_r`` (:func:`~ipp_bench.belief.trace_reductions`) regrouped. An expanded state with b legs over
-q cells costs O(q r^2 + q^2 r) and b Cholesky factorisations of at most M x M (compiled,
-:mod:`~ipp_bench.planners._search_kernels`), instead of the reference's O(b M q n) batched gain and its
-O(n^2 m) copy and downdate of the covariance per edge; an edge adds K's new row and corner, ``U^T D A
-= (Z^T - K Y^T) L^-T`` (``Z = W V``) and ``A^T D A = L^-1 G L^-T``. A child's terms are built only when
+S^-1 (HP)_r`` (:func:`~ipp_bench.belief.trace_reductions`) regrouped. The root's terms cost O(q r^2 +
+q^2 r); a state below it starts from its parent's (it keeps its rows of U and V and its P_cc and
+(P D P)_cc): on the cells both nodes' legs see (about nine in ten) they are the parent's, the other
+cells' rows are rebuilt from the root, and the edge's block A (m columns) updates them all, ``P_cc -=
+A_c A_c^T`` and ``(P D P)_cc += A_c T_c^T + T_c A_c^T`` with ``T = A K_aa / 2 + U K_ua - P0 D A`` (K_aa,
+K_ua: K's new corner and column block), in O(q^2 m + q r m) (:func:`~ipp_bench.planners._search_kernels.child_terms`).
+Then b Cholesky factorisations of at most M x M (compiled, :mod:`~ipp_bench.planners._search_kernels`),
+instead of the reference's O(b M q n) batched gain and its O(n^2 m) copy and downdate of the covariance
+per edge; an edge adds K's new row and corner, ``U^T D A = (Z^T - K Y^T) L^-T`` (``Z = W V``) and
+``A^T D A = L^-1 G L^-T``. A child's terms are built only when
 its own gains are asked for (a rollout's last move, which crosses the horizon, never needs them). The
 quantities are the reference's in exact arithmetic and agree to round-off (~1e-15 of the largest gain);
 the root's gains are computed exactly as the reference computes them, so that legs that tie exactly
@@ -166,12 +171,17 @@ class _Legs:
             self.nz.append((a, x, nz_w[ptr[j]:ptr[j + 1]], np.concatenate([a, self.cells[x]])))
 
 
+#: the edge arguments of ``_search_kernels.child_terms`` for a leg that sees nothing
+_NO_EDGE = (np.zeros((0, 0)), np.zeros((0, 0)), 0, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
+            np.zeros(0), np.zeros(0, dtype=np.int64))
+
+
 class _State:
     """A tree or rollout state. Its factor (the edges from the root, and ``K``) is set when its gains are first
     asked for."""
 
     __slots__ = ("node", "parent", "action", "header", "idata", "fdata", "r", "K", "remaining", "elapsed", "costs",
-                 "order", "gains", "children", "visits", "S", "G", "Ut", "Vt")
+                 "order", "gains", "children", "visits", "S", "G", "Ut", "Vt", "Pcc", "Bcc")
 
     def __init__(self, node: int, parent: _State | None, action: int, remaining: float, elapsed: float,
                  costs: np.ndarray):
@@ -194,6 +204,8 @@ class _State:
         # of the gains, for the edges out of this state: S = W P W^T + R and G = W P D P W^T, each (b, M, M)
         # over the node's legs, and the rows Ut = Uc^T, Vt = Vc^T (r, q) of U and V on the node's cells
         self.S = self.G = self.Ut = self.Vt = None
+        # P and P D P (q, q) on the node's cells (a child starts from them: _search_kernels.child_terms)
+        self.Pcc = self.Bcc = None
 
 
 class MCTSPlanner(GraphPlanner):
@@ -298,16 +310,35 @@ class MCTSPlanner(GraphPlanner):
 
     def _gains(self, state: _State) -> np.ndarray:
         """(k,) predicted reductions of Tr(P) over the decision's ROI, one per leg out of ``state``."""
-        if state.header is None:
-            self._materialise(state)
         legs = self._legs_of(state.node)
-        out = np.zeros(legs.size)
-        if not legs.index.size:
+        parent = state.parent
+        if parent is None or parent.Pcc is None or not legs.index.size:
+            if state.header is None:
+                self._materialise(state)
+            out = np.zeros(legs.size)
+            if not legs.index.size:
+                return out
+            g, state.S, state.G, state.Ut, state.Vt, state.Pcc, state.Bcc = self._kernels.state_terms(
+                self._P, self._B, state.header, state.idata, state.fdata, state.r, legs.cells, state.K, legs.m,
+                legs.pair_ptr, legs.pair_cell, legs.pair_w, legs.var, legs.M)
+            out[legs.index] = g
             return out
-        g, state.S, state.G, state.Ut, state.Vt = self._kernels.state_terms(
-            self._P, self._B, state.header, state.idata, state.fdata, state.r, legs.cells, state.K, legs.m,
-            legs.pair_ptr,
-            legs.pair_cell, legs.pair_w, legs.var, legs.M)
+        # from the parent's terms, with the edge that leads here (the cells both nodes see keep their rows)
+        plegs = self._legs_of(parent.node)
+        j = int(plegs.row[state.action])
+        edge = (parent.S[j], parent.G[j], int(plegs.m[j]), *plegs.nz[j]) if j >= 0 else _NO_EDGE
+        (g, state.S, state.G, state.Ut, state.Vt, state.Pcc, state.Bcc, header, idata, fdata,
+         K) = self._kernels.child_terms(self._P, self._B, parent.header, parent.idata, parent.fdata, parent.r,
+                                        legs.cells, parent.K, legs.m, legs.pair_ptr, legs.pair_cell, legs.pair_w,
+                                        legs.var, legs.M, plegs.cells, parent.Ut, parent.Vt, parent.Pcc, parent.Bcc,
+                                        *edge)
+        if j >= 0:
+            state.header, state.idata, state.fdata, state.K = header, idata, fdata, K
+            state.r = parent.r + edge[2]
+        else:  # the leg sees nothing: the same posterior
+            state.header, state.idata, state.fdata = parent.header, parent.idata, parent.fdata
+            state.r, state.K = parent.r, parent.K
+        out = np.zeros(legs.size)
         out[legs.index] = g
         return out
 
@@ -351,8 +382,9 @@ class MCTSPlanner(GraphPlanner):
             top = rate.max()
             if top <= 0:
                 break
-            logits = cfg.rollout_lambda * rate / top
-            a = int(self.rng.choice(acts, p=softmax(logits)))
+            cdf = np.cumsum(softmax(cfg.rollout_lambda * rate / top))
+            cdf /= cdf[-1]  # the draw of rng.choice(acts, p=...), without its checks: the same number, the same move
+            a = int(acts[np.searchsorted(cdf, self.rng.random(), side="right")])
             state, r, d = self._transition(state, a)
             total += discount * r
             discount *= d

@@ -78,6 +78,36 @@ def test_lowrank_gains_equal_the_dense_reference_along_tree_paths(task):
     assert compared >= 12  # depth 1 to 6 on four paths (fewer where the budget ends)
 
 
+@pytest.mark.parametrize("task", TASKS_15)
+def test_terms_from_the_parent_equal_those_from_the_root(task):
+    """A state's terms from its parent's (``child_terms``: the shared cells' rows kept, the others rebuilt, the
+    edge's rank-m update) are those rebuilt from the root (``state_terms``), to round-off: the gains, S, G and
+    the rows of U, V, P and P D P on the node's cells."""
+    env, obs = _episode(task, seed=5)
+    fast = make_planner("mcts:simulations=4,horizon_s=1000,search=lowrank")
+    fast.reset(view_for(fast, env.unwrapped), 5)
+    root = fast._root(obs)
+    compared = 0
+    for path in _paths(np.random.default_rng(1), fast, root, depth=5, count=3):
+        state = root
+        for a in path:
+            state, _, _ = fast._transition(state, a)
+            fast._expand_info(state)
+            legs = fast._legs_of(state.node)
+            if not legs.index.size:
+                continue
+            assert state.parent.Pcc is not None  # scored from its parent's terms
+            full = _search_kernels.state_terms(fast._P, fast._B, state.header, state.idata, state.fdata, state.r,
+                                               legs.cells, state.K, legs.m, legs.pair_ptr, legs.pair_cell,
+                                               legs.pair_w, legs.var, legs.M)
+            mine = (state.gains[legs.index] * fast._unit, state.S, state.G, state.Ut, state.Vt, state.Pcc, state.Bcc)
+            for got, want in zip(mine, full):
+                assert got.shape == want.shape
+                np.testing.assert_allclose(got, want, rtol=0, atol=RTOL * max(np.abs(want).max(initial=0.0), 1e-300))
+            compared += 1
+    assert compared >= 9
+
+
 def test_a_leg_that_sees_nothing_keeps_the_factor():
     """Legs without read-outs (None) give 0 and leave the posterior as it was: the child shares the factor."""
     env, obs = _episode("ipp_bench/Grid15Eval-v1", seed=3, steps=1)

@@ -169,7 +169,7 @@ SUITE_ENTRY_POINTS = ("ipp_bench.envs.graph:GraphIPPEnv", "ipp_bench.envs.twin:T
                       "ipp_bench.sim.env:MuJoCoIPPEnv", "ipp_bench.envs.team:TeamGraphEnv")
 #: what ``gym.make_vec`` of a MuJoCo task passes to its vector env (the spec's ``vector_kwargs``)
 VECTOR_KWARGS = {"context": "forkserver"}
-#: the team tasks' environment: a PettingZoo AEC env, made by :func:`make_env`, not registered with gymnasium
+#: the team tasks' environment: a PettingZoo AEC env, made by :func:`make_env` (``gym.make`` refuses it)
 TEAM_ENTRY_POINT = "ipp_bench.envs.team:TeamGraphEnv"
 _ENTRY_POINT = re.compile(r"^ipp_bench(\.[A-Za-z_][A-Za-z0-9_]*)+:[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -295,6 +295,10 @@ def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
     window, which asks for pygame instead.)
     """
     kwargs.pop("vector_kwargs", None)  # the spec's, for gym.make_vec only (_register)
+    if env_class == TEAM_ENTRY_POINT:  # registered so that gym.make says what it is, in one line
+        task = kwargs.get("task_id", "a team task")
+        raise ValueError(f"{task} is a team task: a PettingZoo AEC environment, not a gymnasium one; make it with "
+                         f"ipp_bench.envs.make_env({task!r})")
     problem = entry_point_problem(env_class)
     if problem is not None:  # never import what a task file names unless it is the suite's
         raise ValueError(problem)
@@ -321,7 +325,7 @@ def register_all() -> None:
 
 
 def _register(spec: TaskSpec) -> None:
-    if spec.id in gym.registry or spec.entry_point == TEAM_ENTRY_POINT:  # a team task is no gymnasium env
+    if spec.id in gym.registry:
         return
     kwargs = {"env_class": spec.entry_point, "config": spec.config, "task_id": spec.id}
     if spec.sim:  # a deployment task's [sim] table, validated by ipp_bench.sim (never imported here)

@@ -36,12 +36,16 @@ def test_v2_tasks_are_sparse_hotspots_with_a_fitted_mean():
         assert train.replace(episode_seeds=cfg.mission.episode_seeds) == cfg  # the same task on other seeds
 
 
-def test_registration_is_idempotent_and_leaves_the_team_tasks_to_pettingzoo():
-    gym_tasks = [k for k in envs.TASKS if "team" not in envs.TASKS[k].tags]
-    before = {k: gym.registry[k] for k in gym_tasks}
+def test_registration_is_idempotent():
+    before = {k: gym.registry[k] for k in envs.TASKS}
     envs.register_all()
-    assert {k: gym.registry[k] for k in gym_tasks} == before
-    assert not [k for k in envs.TASKS if "team" in envs.TASKS[k].tags and k in gym.registry]
+    assert {k: gym.registry[k] for k in envs.TASKS} == before
+
+
+def test_gym_make_of_a_team_task_says_it_is_a_pettingzoo_env_in_one_line():
+    with pytest.raises(ValueError, match=r"ipp_bench/Hotspots30Team2Eval-v2 is a team task: a PettingZoo AEC "
+                                         r"environment, not a gymnasium one; make it with ipp_bench.envs.make_env"):
+        gym.make("ipp_bench/Hotspots30Team2Eval-v2")
 
 
 def test_import_ipp_bench_registers_the_tasks():

@@ -244,8 +244,7 @@ class TeamMission:
         """The latest metrics; ``distance_m`` the team's, ``remaining_s`` the UAVs' sum."""
         out = self.world.metrics()
         out.update(distance_m=sum(m.distance_m for m in self.members),
-                   remaining_s=sum(m.remaining_s for m in self.members),
-                   measurements=self.world.n_measurements)
+                   remaining_s=sum(m.remaining_s for m in self.members))
         return out
 
     def belief_roi(self) -> np.ndarray:

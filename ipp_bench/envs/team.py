@@ -115,6 +115,7 @@ class TeamGraphEnv(AECEnv):
         self.terminations, self.truncations, self.infos = {}, {}, {}
         self.agent_selection = self.possible_agents[0]
         self._roi: np.ndarray | None = None
+        self._seed_rng = np.random.default_rng()  # draws the episode seed of reset(seed=None)
 
     # -- spaces ----------------------------------------------------------------------------------
     def observation_space(self, agent: str):
@@ -127,8 +128,6 @@ class TeamGraphEnv(AECEnv):
     def reset(self, seed: int | None = None, options: dict | None = None) -> None:
         lo, hi = self.config.mission.episode_seeds
         if seed is None:
-            if self._np_random_unset():
-                self._seed_rng = np.random.default_rng()
             seed = int(self._seed_rng.integers(hi - lo))
         elif not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
             raise ValueError(f"seed = {seed!r} is invalid: expected an integer >= 0 or None")
@@ -159,9 +158,6 @@ class TeamGraphEnv(AECEnv):
         self._roi = self.mission.belief_roi()
         self.agent_selection = self._next()
 
-    def _np_random_unset(self) -> bool:
-        return getattr(self, "_seed_rng", None) is None
-
     def _start_nodes(self, start_seed: int, options: dict | None) -> list[int]:
         n, size = self.roadmap.n_nodes, self.team.size
         if options and "start_nodes" in options:
@@ -191,8 +187,7 @@ class TeamGraphEnv(AECEnv):
         dead = [a for a in self.agents if self.terminations[a]]
         if dead:
             return dead[0]
-        live = [a for a in self.agents]
-        return min(live, key=lambda a: (self.seats[self.uav_index(a)].mission.time_s, self.uav_index(a)))
+        return min(self.agents, key=lambda a: (self.seats[self.uav_index(a)].mission.time_s, self.uav_index(a)))
 
     def uav_index(self, agent: str) -> int:
         """``"uav_3"`` -> 3."""

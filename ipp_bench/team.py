@@ -158,11 +158,15 @@ class TeamMission:
         member_configs: each UAV's config (its own budget); default: ``team.member_config``.
         sensor: the camera model (default: built from ``config``).
         platform: a factory ``platform(uav)`` of each UAV's platform (default: straight legs).
+        ahead: for platforms whose legs are flown as time goes on (a simulated team, which cannot fly a
+            leg before its teammates reach its time): ``ahead(uav)`` predicts the read-outs UAV
+            ``uav``'s committed leg will still take; :meth:`pending_observations` adds them.
     """
 
     def __init__(self, config: IPPConfig, team: TeamConfig, truth: np.ndarray, starts: Sequence,
                  rngs: Sequence[np.random.Generator], member_configs: Sequence[IPPConfig] | None = None,
-                 sensor=None, platform: Callable[[int], Platform] | None = None):
+                 sensor=None, platform: Callable[[int], Platform] | None = None,
+                 ahead: Callable[[int], list[Observation]] | None = None):
         if len(starts) != team.size or len(rngs) != team.size:
             raise ValueError(f"a team of {team.size} needs {team.size} starts and noise generators: got "
                              f"{len(starts)} and {len(rngs)}")
@@ -176,6 +180,7 @@ class TeamMission:
         self.belief = self.world.belief
         self._pending: list[tuple[float, int, int, Record]] = []  # (time, uav, order taken, record)
         self._taken = 0
+        self._ahead = ahead
         self.fused_s = 0.0  # [s] the belief holds every read-out taken up to this time
         configs = member_configs or [team.member_config(config, i) for i in range(team.size)]
         self.members: list[MemberMission] = []
@@ -211,8 +216,14 @@ class TeamMission:
     def pending_observations(self, exclude: int | None = None) -> list[Observation]:
         """The observations (where and how noisy; not the values) of the read-outs taken but not yet
         fused, of every UAV but ``exclude``: a teammate's committed leg, which a planner may fuse into
-        its predicted covariance in advance."""
-        return [p[3][0] for p in sorted(self._pending) if p[1] != exclude and p[3][0] is not None]
+        its predicted covariance in advance. With an ``ahead`` predictor, the read-outs the teammates'
+        committed legs will still take are added as predicted."""
+        out = [p[3][0] for p in sorted(self._pending) if p[1] != exclude and p[3][0] is not None]
+        if self._ahead is not None:
+            for uav in range(len(self.members)):
+                if uav != exclude:
+                    out.extend(self._ahead(uav))
+        return out
 
     # -- clock and metrics ---------------------------------------------------------------------------
     @property

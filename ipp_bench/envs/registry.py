@@ -152,25 +152,29 @@ def load_task_file(path, builtin: bool = False) -> TaskSpec:
         line = _line_of(text, m.group(m.lastindex)) if m else None
         raise TaskFileError(path, str(err), line) from None
     team = data.get("team", {})
-    if team or entry == TEAM_ENTRY_POINT:
+    if team or entry in TEAM_ENTRY_POINTS:
         try:
             TeamConfig.from_dict(team).check(config)
         except ValueError as err:
             raise TaskFileError(path, str(err), _line_of(text, "team")) from None
-        if entry != TEAM_ENTRY_POINT:
-            raise TaskFileError(path, f"a [team] table needs entry_point = {TEAM_ENTRY_POINT!r}",
-                                _line_of(text, "entry_point"))
+        if entry not in TEAM_ENTRY_POINTS:
+            raise TaskFileError(path, f"a [team] table needs entry_point = {TEAM_ENTRY_POINT!r} (the roadmap) or "
+                                f"{SIM_TEAM_ENTRY_POINT!r} (MuJoCo)", _line_of(text, "entry_point"))
     return TaskSpec(task_id, entry, tuple(tags), description.strip(), config, str(path), builtin, dict(sim),
                     dict(team))
 
 
 #: the environment classes of the suite, named where an entry point is refused
 SUITE_ENTRY_POINTS = ("ipp_bench.envs.graph:GraphIPPEnv", "ipp_bench.envs.twin:TwinIPPEnv",
-                      "ipp_bench.sim.env:MuJoCoIPPEnv", "ipp_bench.envs.team:TeamGraphEnv")
+                      "ipp_bench.sim.env:MuJoCoIPPEnv", "ipp_bench.envs.team:TeamGraphEnv",
+                      "ipp_bench.sim.team:MuJoCoTeamEnv")
 #: what ``gym.make_vec`` of a MuJoCo task passes to its vector env (the spec's ``vector_kwargs``)
 VECTOR_KWARGS = {"context": "forkserver"}
 #: the team tasks' environment: a PettingZoo AEC env, made by :func:`make_env` (``gym.make`` refuses it)
 TEAM_ENTRY_POINT = "ipp_bench.envs.team:TeamGraphEnv"
+#: a team task deployed in MuJoCo (several quadrotors in one scene), also made by :func:`make_env`
+SIM_TEAM_ENTRY_POINT = "ipp_bench.sim.team:MuJoCoTeamEnv"
+TEAM_ENTRY_POINTS = (TEAM_ENTRY_POINT, SIM_TEAM_ENTRY_POINT)
 _ENTRY_POINT = re.compile(r"^ipp_bench(\.[A-Za-z_][A-Za-z0-9_]*)+:[A-Za-z_][A-Za-z0-9_]*$")
 
 
@@ -295,7 +299,7 @@ def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
     window, which asks for pygame instead.)
     """
     kwargs.pop("vector_kwargs", None)  # the spec's, for gym.make_vec only (_register)
-    if env_class == TEAM_ENTRY_POINT:  # registered so that gym.make says what it is, in one line
+    if env_class in TEAM_ENTRY_POINTS:  # registered so that gym.make says what it is, in one line
         task = kwargs.get("task_id", "a team task")
         raise ValueError(f"{task} is a team task: a PettingZoo AEC environment, not a gymnasium one; make it with "
                          f"ipp_bench.envs.make_env({task!r})")
@@ -387,7 +391,7 @@ def make_env(task: str, *, render: bool = False, **overrides: Any):
     """
     task_id = resolve_task(task)
     spec = TASKS.get(task_id)
-    if spec is not None and spec.entry_point == TEAM_ENTRY_POINT:
+    if spec is not None and spec.entry_point in TEAM_ENTRY_POINTS:
         return make_team_env(spec, render=render, **overrides)
     with warnings.catch_warnings():  # gymnasium's own notice (in colour, once per process and task): ours instead
         warnings.filterwarnings("ignore", message=r".* is out of date\. You should consider upgrading",
@@ -398,10 +402,9 @@ def make_env(task: str, *, render: bool = False, **overrides: Any):
 
 
 def make_team_env(spec: TaskSpec, *, render: bool = False, **overrides: Any):
-    """A team task's :class:`~ipp_bench.envs.team.TeamGraphEnv`; ``overrides``: config fields by name,
-    and ``team={...}`` for fields of its ``[team]`` table."""
-    from .team import TeamGraphEnv
-
+    """A team task's :class:`~ipp_bench.envs.team.TeamGraphEnv` (or, deployed in MuJoCo,
+    :class:`~ipp_bench.sim.team.MuJoCoTeamEnv`); ``overrides``: config fields by name, ``team={...}``
+    for fields of its ``[team]`` table, and a MuJoCo team's ``[sim]`` fields by name."""
     team = dict(spec.team)
     overrides = dict(overrides)
     extra = overrides.pop("team", None)
@@ -411,13 +414,23 @@ def make_team_env(spec: TaskSpec, *, render: bool = False, **overrides: Any):
                              "team={\"size\": 4}")
         team.update(extra)
     config = task_config(spec.id, overrides)
-    return TeamGraphEnv(config, team=team, render_mode="rgb_array" if render else None, task_id=spec.id)
+    render_mode = "rgb_array" if render else None
+    if spec.entry_point == SIM_TEAM_ENTRY_POINT:
+        try:  # by name: the envs layer never imports the simulation
+            cls = load_env_creator(SIM_TEAM_ENTRY_POINT)
+        except ImportError as err:
+            raise ImportError(f'{spec.id} needs the MuJoCo deployment: pip install "ipp-bench[sim]" ({err})') from None
+        sim = {k: v for k, v in overrides.items() if k in sim_fields(spec)}
+        return cls(config, team=team, render_mode=render_mode, task_id=spec.id, sim_section=spec.sim, **sim)
+    from .team import TeamGraphEnv
+
+    return TeamGraphEnv(config, team=team, render_mode=render_mode, task_id=spec.id)
 
 
 def is_team_task(task: str) -> bool:
     """Whether ``task`` (an id or a task file) is a team task (several UAVs, one belief)."""
     spec = TASKS.get(resolve_task(task))
-    return spec is not None and spec.entry_point == TEAM_ENTRY_POINT
+    return spec is not None and spec.entry_point in TEAM_ENTRY_POINTS
 
 
 class OutdatedTaskWarning(FutureWarning):
@@ -465,7 +478,7 @@ def task_config(task_id: str, overrides: dict[str, Any] | None = None) -> IPPCon
     """
     spec = task_spec(task_id)
     config = spec.config
-    if overrides and spec.entry_point == TEAM_ENTRY_POINT and "team" in overrides:  # the [team] table's own
+    if overrides and spec.entry_point in TEAM_ENTRY_POINTS and "team" in overrides:  # the [team] table's own
         overrides = {k: v for k, v in overrides.items() if k != "team"}
     if not overrides:
         return config

@@ -140,9 +140,7 @@ class TeamGraphEnv(AECEnv):
         rngs = [np.random.default_rng(noise_seed)] + [np.random.default_rng([noise_seed, i])
                                                       for i in range(1, self.team.size)]
         starts = [self.roadmap.positions[n] for n in nodes]
-        self.mission = TeamMission(self.team.team_config(self.config), self.team, truth, starts, rngs,
-                                   [self.team.member_config(self.config, i) for i in range(self.team.size)],
-                                   sensor=self.sensor)
+        self.mission = self._make_mission(truth, starts, rngs)
         for seat, member, node in zip(self.seats, self.mission.members, nodes):
             seat.mission, seat.current_node, seat.episode_seed, seat.off_roadmap = member, node, seed, False
         self.agents = self.possible_agents[:]
@@ -157,6 +155,17 @@ class TeamGraphEnv(AECEnv):
         self.infos = {a: self._info(i) for i, a in enumerate(self.agents)}
         self._roi = self.mission.belief_roi()
         self.agent_selection = self._next()
+
+    def _make_mission(self, truth: np.ndarray, starts: list[np.ndarray],
+                      rngs: list[np.random.Generator]) -> TeamMission:
+        """The episode's team mission (the graph's straight legs; a simulated team flies its own)."""
+        return TeamMission(self.team.team_config(self.config), self.team, truth, starts, rngs,
+                           [self.team.member_config(self.config, i) for i in range(self.team.size)],
+                           sensor=self.sensor)
+
+    def _fly_until(self, time_s: float | None) -> None:
+        """Fly the committed legs up to ``time_s`` (None: to their ends). The graph's legs are flown
+        whole when they are committed, so nothing is left to fly here; a simulated team flies here."""
 
     def _start_nodes(self, start_seed: int, options: dict | None) -> list[int]:
         n, size = self.roadmap.n_nodes, self.team.size
@@ -261,8 +270,11 @@ class TeamGraphEnv(AECEnv):
         live = [a for a in self.agents if not self.terminations[a]]
         before = M.trace_roi(self.mission.belief.variance, self._roi)
         if live:
-            self.mission.fuse_until(min(self.seats[self.uav_index(a)].mission.time_s for a in live))
+            now = min(self.seats[self.uav_index(a)].mission.time_s for a in live)
+            self._fly_until(now)
+            self.mission.fuse_until(now)
         else:
+            self._fly_until(None)
             self.mission.finish()
         after = M.trace_roi(self.mission.belief.variance, self._roi)
         reward = M.info_gain_reward(before, after)

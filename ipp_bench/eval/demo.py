@@ -72,7 +72,7 @@ def record(task: str, planner: str, seed: int, out: str, budget: float | None = 
            progress: bool = True):
     """Flies ``planner`` on ``task`` and writes the video; returns the
     :class:`~ipp_bench.planners.episode.EpisodeResult` and the frame count."""
-    from ipp_bench.planners.episode import fly_episode
+    from ipp_bench.planners.episode import fly_episode, is_team_env
 
     env = make_sim_env(task, budget)
     video: dict[str, DemoVideo] = {}
@@ -85,13 +85,15 @@ def record(task: str, planner: str, seed: int, out: str, budget: float | None = 
 
     def on_reset(e) -> None:
         v = DemoVideo(e, out, f"{planner} | {task.split('/')[-1]} | seed {seed}", size, fps, speedup, crf, hold_s, bar)
-        e.mission.step_hooks.append(v.hook)
+        team = is_team_env(e)  # a team's drones share one physics: its steps carry the hook
+        (e.sim_team if team else e.mission).step_hooks.append(v.hook)
         v.hook(e.mission)  # the frame at t = 0
         video["v"] = v
 
     try:
         log = fly_episode(env, planner, seed, on_reset=on_reset)
-        n = video["v"].close(env.mission.time_s)
+        end = max(m.time_s for m in env.mission.members) if is_team_env(env) else env.mission.time_s
+        n = video["v"].close(end)
         if bar is not None:  # the mission is over: 100 %, even when it ended before the last second
             bar.update(max(bar.total - bar.n, 0.0))
     except BaseException:

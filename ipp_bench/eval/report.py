@@ -225,17 +225,17 @@ def _pairs_table(agg: Aggregate, pairs: Sequence[tuple[str, str]], key: str, nam
 def team_pairs(tasks: Sequence[str]) -> list[tuple[str, str, int]]:
     """(single-UAV task, team task, UAVs) for every team task among ``tasks`` whose single-UAV task (the
     same configuration: field family, prior, camera, roadmap, budget, report times, seeds) is there too."""
-    from ..envs.registry import TASKS, TEAM_ENTRY_POINT
+    from ..envs.registry import TASKS, TEAM_ENTRY_POINTS
     from ..team import TeamConfig
 
     out = []
     for team in tasks:
         spec = TASKS.get(team)
-        if spec is None or spec.entry_point != TEAM_ENTRY_POINT:
+        if spec is None or spec.entry_point not in TEAM_ENTRY_POINTS:
             continue
         for single in tasks:
             other = TASKS.get(single)
-            if other is not None and other.entry_point != TEAM_ENTRY_POINT and other.config == spec.config:
+            if other is not None and other.entry_point not in TEAM_ENTRY_POINTS and other.config == spec.config:
                 out.append((single, team, TeamConfig.from_dict(spec.team).size))
     return out
 

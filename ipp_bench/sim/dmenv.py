@@ -43,12 +43,17 @@ def load(task_id: str = DEFAULT_TASK, *, seed: int | None = 0, **overrides: Any)
     """
     import ipp_bench.envs as envs
     from ipp_bench.config import check_integer
+    from ipp_bench.envs.registry import is_team_task
 
     if seed is not None:  # before the world is built: numpy's own error names no argument
         check_integer("load(seed)", seed, 0)
     spec = envs.task_spec(task_id)
+    single = [t for t in envs.tagged("deployment") if not is_team_task(t)]
     if "deployment" not in spec.tags:  # the MuJoCo tasks carry the tag
-        raise ValueError(f"task {task_id!r} is not a MuJoCo deployment: valid are {envs.tagged('deployment')}")
+        raise ValueError(f"task {task_id!r} is not a MuJoCo deployment: valid are {single}")
+    if is_team_task(spec.id):
+        raise ValueError(f"task {spec.id!r} is a team (a PettingZoo AEC environment, ipp_bench.envs.make_env); "
+                         f"a dm_control Environment flies one drone: valid are {single}")
     task = envs.make_env(spec.id, **overrides)
     task.seed_episodes(seed)
     return control.Environment(task.world.scene.physics, task, n_sub_steps=1)

@@ -69,21 +69,34 @@ class Flight:
         cfg: how legs are flown.
         gains: controller bandwidths.
         disturbances: wind and state-estimation errors (drawn per episode from ``disturbance_seed``).
+        drone: which drone of a team scene this loop flies (:attr:`WeedScene.drones_ids`).
+        wind_owner: whether this loop's disturbances set the scene's wind (``opt.wind``). In a team
+            scene the first drone's do; the others keep their own estimator errors and feel that
+            same wind (:meth:`wind`).
+
+    A team scene's drones are flown together (:func:`step_together`): each loop's :meth:`control`
+    writes its drone's thrusts, then one ``mj_step`` advances them all.
     """
 
     def __init__(self, scene: WeedScene, speed: float = 2.0, cfg: FlightConfig = FlightConfig(),
                  gains: ControllerGains = ControllerGains(),  # noqa: B008 (frozen dataclasses)
-                 disturbances: DisturbanceConfig = DisturbanceConfig.none()) -> None:  # noqa: B008
+                 disturbances: DisturbanceConfig = DisturbanceConfig.none(), drone: int = 0,  # noqa: B008
+                 wind_owner: bool = True) -> None:
         if not speed > 0.0:
             raise ValueError(f"Flight speed must be > 0 [m/s], got {speed}")
+        if not 0 <= drone < scene.drones:
+            raise ValueError(f"drone = {drone} is invalid: the scene has {scene.drones} (0..{scene.drones - 1})")
         self.scene, self.cfg = scene, cfg
+        self.drone, self.wind_owner = int(drone), bool(wind_owner)
         self.speed = float(speed)
         self.ramp_s = cfg.ramp_s
         self.controller = CascadedController(scene.quad, gains)
         self._m, self._d = scene.model, scene.data
-        self._qp, self._qv = scene.qpos_adr, scene.qvel_adr
-        self._act = scene.actuator_ids
-        self._body = scene.body_id
+        ids = scene.drones_ids[self.drone]
+        self._qp, self._qv = ids.qpos_adr, ids.qvel_adr
+        self._act = ids.actuator_ids
+        self._body = ids.body_id
+        self.camera_id = ids.camera_id
         #: rotor speeds of the "speed" rotor model (None: MuJoCo's thrust lag)
         self.rotors = RotorSpeeds(scene.quad, self._m.opt.timestep) if scene.quad.rotor_model == "speed" else None
         self.disturbance_cfg = disturbances
@@ -119,6 +132,8 @@ class Flight:
     @property
     def wind(self) -> np.ndarray:
         """Current wind velocity [m/s] (zeros when calm)."""
+        if not self.wind_owner:
+            return np.array(self._m.opt.wind)
         return np.array(self.disturbances.wind) if self.disturbances is not None else np.zeros(3)
 
     def estimated_position(self) -> np.ndarray:
@@ -129,7 +144,7 @@ class Flight:
 
     def estimated_camera_pose(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(estimated body position, camera position, camera orientation (3, 3)) used to georeference frames."""
-        d, cam = self._d, self.scene.camera_id
+        d, cam = self._d, self.camera_id
         if self.disturbances is None:
             return self.position, d.cam_xpos[cam].copy(), d.cam_xmat[cam].reshape(3, 3).copy()
         q = d.qpos[self._qp + 3: self._qp + 7].tolist()
@@ -140,6 +155,10 @@ class Flight:
     def reset(self, xyz, yaw: float = 0.0) -> None:
         """Drone at rest at ``xyz`` [m], time 0, the episode's disturbances from ``disturbance_seed``."""
         self.scene.reset(xyz, yaw)
+        self.reset_state(xyz, yaw)
+
+    def reset_state(self, xyz, yaw: float = 0.0) -> None:
+        """This loop's state for a drone the scene has just put at rest at ``xyz`` (``WeedScene.reset_team``)."""
         if self.rotors is not None:
             self.rotors.reset(self.scene.quad.hover_thrust)
         self.controller.yaw = float(yaw)
@@ -147,7 +166,8 @@ class Flight:
         cfg = self.disturbance_cfg
         perfect = cfg.calm and cfg.estimator_is_perfect
         self.disturbances = None if perfect else Disturbances(cfg, self.disturbance_seed)
-        self._m.opt.wind[:] = 0.0
+        if self.wind_owner:
+            self._m.opt.wind[:] = 0.0
         self._d.xfrc_applied[self._body] = 0.0
         self.ref_pos = np.asarray(xyz, dtype=np.float64).copy()
         self.ref_vel = np.zeros(3)
@@ -174,6 +194,13 @@ class Flight:
     # -- control loop ------------------------------------------------------------------------------
     def step(self, ref_pos, ref_vel, ref_acc) -> None:
         """One physics step towards the reference, from the estimated state, in the current wind."""
+        self.control(ref_pos, ref_vel, ref_acc)
+        mujoco.mj_step(self._m, self._d)
+        self.steps += 1
+
+    def control(self, ref_pos, ref_vel, ref_acc) -> None:
+        """The drone's thrusts (and wind forces) for the next physics step, from the estimated state;
+        the caller steps the physics (:meth:`step` for one drone; a team steps once for all of them)."""
         d = self._d
         qp, qv = self._qp, self._qv
         q = d.qpos[qp: qp + 7].tolist()
@@ -184,20 +211,19 @@ class Flight:
         else:
             if self.steps % self._every == 0:
                 dist.advance()
-                self._m.opt.wind[:] = dist.wind
+                if self.wind_owner:
+                    self._m.opt.wind[:] = dist.wind
             ep, ev = dist.position_error(), dist.velocity_error()
             pos = (q[0] + ep[0], q[1] + ep[1], q[2] + ep[2])
             vel = (v[0] + ev[0], v[1] + ev[1], v[2] + ev[2])
             quat = perturb_quat(q[3:], dist.attitude_error())
             k = self.disturbance_cfg.rotor_drag
             if k > 0.0:
-                wx, wy, _ = dist.wind
+                wx, wy, _ = dist.wind if self.wind_owner else self._m.opt.wind
                 d.xfrc_applied[self._body, 0] = k * (wx - v[0])
                 d.xfrc_applied[self._body, 1] = k * (wy - v[1])
         thrusts = self.controller.thrusts(pos, vel, quat, v[3:], ref_pos, ref_vel, ref_acc)
         d.ctrl[self._act] = thrusts if self.rotors is None else self.rotors.step(thrusts)
-        mujoco.mj_step(self._m, d)
-        self.steps += 1
 
     def hover(self, duration_s: float, at=None, on_step: Callable[[Flight], bool | None] | None = None) -> None:
         """Holds position ``at`` (default: here) for ``duration_s`` seconds."""
@@ -278,3 +304,13 @@ class Flight:
                     return False
         finally:
             self.ref_pos, self.ref_vel, self.ref_time = self.position, np.zeros(3), self.time_s
+
+
+def step_together(flights: list[Flight], refs) -> None:
+    """One physics step of a team scene: each drone's loop towards its reference ``(pos, vel, acc)``
+    (the first drone's first: its disturbances set the wind the others feel), then one ``mj_step``."""
+    for flight, ref in zip(flights, refs):
+        flight.control(*ref)
+    mujoco.mj_step(flights[0]._m, flights[0]._d)
+    for flight in flights:
+        flight.steps += 1

@@ -24,18 +24,19 @@ from ipp_bench.sim.scene import WeedScene
 
 
 def chase_camera(scene: WeedScene, distance: float = 7.0, azimuth: float = 45.0,
-                 elevation: float = -38.0) -> mujoco.MjvCamera:
-    """A camera that follows the drone from above and behind (angles in degrees; azimuth 45 looks along +x +y)."""
+                 elevation: float = -38.0, drone: int = 0) -> mujoco.MjvCamera:
+    """A camera that follows drone ``drone`` from above and behind (angles in degrees; azimuth 45 looks along +x +y)."""
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-    cam.trackbodyid = scene.body_id
+    cam.trackbodyid = scene.drones_ids[drone].body_id
     cam.distance, cam.azimuth, cam.elevation = distance, azimuth, elevation
     return cam
 
 
-def azimuth_to_centre(scene: WeedScene) -> float:
-    """Azimuth [deg] from the drone towards the centre of the map (the chase view keeps the field in sight)."""
-    x, y = scene.data.qpos[scene.qpos_adr: scene.qpos_adr + 2]
+def azimuth_to_centre(scene: WeedScene, drone: int = 0) -> float:
+    """Azimuth [deg] from drone ``drone`` towards the centre of the map (the chase view keeps the field in sight)."""
+    adr = scene.drones_ids[drone].qpos_adr
+    x, y = scene.data.qpos[adr: adr + 2]
     cx, cy = scene.cols * scene.resolution / 2.0, scene.rows * scene.resolution / 2.0
     if math.hypot(cx - x, cy - y) < 1e-6:
         return 45.0
@@ -107,6 +108,13 @@ class SceneRenderer:
         self._down = mujoco.MjvCamera()
         self._down.type = mujoco.mjtCamera.mjCAMERA_FIXED
         self._down.fixedcamid = scene.camera_id
+
+    def down_camera(self, drone: int) -> mujoco.MjvCamera:
+        """The downward camera of drone ``drone`` of a team scene (``render(None)`` is the first drone's)."""
+        cam = mujoco.MjvCamera()
+        cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        cam.fixedcamid = self.scene.drones_ids[drone].camera_id
+        return cam
 
     @property
     def is_open(self) -> bool:

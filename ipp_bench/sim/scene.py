@@ -5,9 +5,11 @@ Composed with dm_control's PyMJCF and compiled into a :class:`DeploymentPhysics`
 airframe is a separate MJCF model (:func:`~ipp_bench.sim.quadrotor.airframe_mjcf` by default)
 attached under the prefix ``quad/`` with a free joint, so a user replaces it with their own MJCF
 (``WeedScene(..., airframe=mjcf.from_path("my_quad.xml"))``; the names it must provide are
-:data:`~ipp_bench.sim.quadrotor.AIRFRAME_NAMES`). The controller's parameters (mass, inertia, arm
-length, thrust limits, rotor lag, camera) are read back from the compiled model
-(:func:`~ipp_bench.sim.quadrotor.airframe_params`), never assumed.
+:data:`~ipp_bench.sim.quadrotor.AIRFRAME_NAMES`). A team scene (``drones=n``) attaches n copies,
+under ``quad/``, ``quad1/``, ``quad2/``, ...; they do not collide with each other (the planners keep
+them on different roadmap nodes, but two legs may cross: collision avoidance is not modelled).
+The controller's parameters (mass, inertia, arm length, thrust limits, rotor lag, camera) are read
+back from the compiled model (:func:`~ipp_bench.sim.quadrotor.airframe_params`), never assumed.
 
 The ground texture is a per-seed numpy array written straight into the compiled model's
 ``tex_data`` (no temporary PNG, no base64 in XML; the MJCF declares a blank texture of the right
@@ -23,6 +25,7 @@ colour is its texture colour from every camera pose.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +61,25 @@ class SceneConfig:
 
 SOIL_RGBA = (0.42, 0.33, 0.24, 1.0)
 AIRFRAME_PREFIX = "quad/"
+#: the most quadrotors one scene holds
+MAX_DRONES = 16
+
+
+def drone_prefix(drone: int) -> str:
+    """Name prefix of drone ``drone``'s airframe: ``quad/`` for the first, ``quad1/``, ``quad2/``, ... after it."""
+    return AIRFRAME_PREFIX if drone == 0 else f"{AIRFRAME_PREFIX.rstrip('/')}{drone}/"
+
+
+@dataclass(frozen=True)
+class DroneIds:
+    """Where one drone lives in the compiled model."""
+
+    joint_name: str  # its free joint
+    body_id: int
+    camera_id: int  # its downward camera
+    qpos_adr: int
+    qvel_adr: int
+    actuator_ids: np.ndarray  # (4,) rotor actuators
 
 
 class DeploymentPhysics(mjcf.Physics):
@@ -77,14 +99,17 @@ class DeploymentPhysics(mjcf.Physics):
 
 
 def build_mjcf(rows: int, cols: int, resolution: float, airframe: mjcf.RootElement | None = None,
-               cfg: SceneConfig = SceneConfig()) -> mjcf.RootElement:
-    """Composes the scene with ``airframe`` attached (default: the shipped quadrotor).
+               cfg: SceneConfig = SceneConfig(), drones: int = 1) -> mjcf.RootElement:
+    """Composes the scene with ``airframe`` attached (default: the shipped quadrotor), ``drones`` times.
 
     Returns:
         The scene's root. The ground texture starts blank (see :meth:`WeedScene.set_ground`).
         ``airframe`` is attached as it is (its model renamed ``quad``), its free body placed at
-        (centre of the map, 10 m).
+        (centre of the map, 10 m); further drones are copies of it (``quad1``, ...), 2 m apart along
+        x, with no contacts between any two of them.
     """
+    if isinstance(drones, bool) or not isinstance(drones, int) or not 1 <= drones <= MAX_DRONES:
+        raise ValueError(f"drones = {drones!r} is invalid: expected an integer in [1, {MAX_DRONES}]")
     width_m, height_m = cols * resolution, rows * resolution
     root = mjcf.RootElement(model="ipp_bench_weed_field")
     root.option.timestep = cfg.timestep
@@ -125,9 +150,16 @@ def build_mjcf(rows: int, cols: int, resolution: float, airframe: mjcf.RootEleme
               size=[cfg.outer_ground, cfg.outer_ground, 0.05],
               pos=[width_m / 2, height_m / 2, -0.13], contype=0, conaffinity=0)
     airframe = airframe if airframe is not None else airframe_mjcf()
-    airframe.model = AIRFRAME_PREFIX.rstrip("/")
-    frame = root.attach(airframe)
-    frame.pos = [width_m / 2, height_m / 2, 10.0]
+    frames = [airframe] + [copy.deepcopy(airframe) for _ in range(1, drones)]
+    free_bodies = []
+    for i, af in enumerate(frames):
+        af.model = drone_prefix(i).rstrip("/")
+        frame = root.attach(af)
+        frame.pos = [width_m / 2 + 2.0 * i, height_m / 2, 10.0]
+        free_bodies += [b for b in af.find_all("body") if b.freejoint is not None]
+    for i, a in enumerate(free_bodies):
+        for b in free_bodies[i + 1:]:
+            root.contact.add("exclude", body1=a, body2=b)
     return root
 
 
@@ -143,38 +175,51 @@ class WeedScene:
 
     ``quad`` is then what the compiled model says (:func:`~ipp_bench.sim.quadrotor.airframe_params`).
     ``model`` and ``data`` are the raw ``MjModel`` / ``MjData`` of ``physics`` (the control loop
-    steps them directly; named reads go through ``physics.named``).
+    steps them directly; named reads go through ``physics.named``). ``drones`` > 1 builds a team
+    scene: ``drones_ids[i]`` holds drone i's ids; the attributes ``joint_name``, ``body_id``,
+    ``camera_id``, ``qpos_adr``, ``qvel_adr`` and ``actuator_ids`` are the first drone's.
     """
 
     def __init__(self, rows: int, cols: int, resolution: float,
                  quad: QuadrotorParams = QuadrotorParams(), cfg: SceneConfig = SceneConfig(),  # noqa: B008 (frozen)
-                 airframe: mjcf.RootElement | None = None) -> None:
+                 airframe: mjcf.RootElement | None = None, drones: int = 1) -> None:
         self.rows, self.cols, self.resolution = int(rows), int(cols), float(resolution)
         self.cfg = cfg
         self.mjcf_model = build_mjcf(self.rows, self.cols, self.resolution,
-                                                  airframe if airframe is not None else airframe_mjcf(quad), cfg)
+                                     airframe if airframe is not None else airframe_mjcf(quad), cfg, drones)
         self.physics = DeploymentPhysics.from_mjcf_model(self.mjcf_model)
         self.model = self.physics.model.ptr
         self.data = self.physics.data.ptr
         m = self.model
         self.quad = airframe_params(m, AIRFRAME_PREFIX, quad.thrust_coeff)
-        named = self.physics.named.model
-        joint = free_joint(m, AIRFRAME_PREFIX)
-        self.joint_name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, joint)
-        self.body_id = int(m.jnt_bodyid[joint])
-        self.camera_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, AIRFRAME_PREFIX + "down")
         self.light_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_LIGHT, "sun")
         self.texture_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXTURE, "weed_field")
-        self.qpos_adr = int(named.jnt_qposadr[self.joint_name])
-        self.qvel_adr = int(named.jnt_dofadr[self.joint_name])
-        self.actuator_ids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"{AIRFRAME_PREFIX}rotor{i}")
-                                      for i in range(4)])
+        self.drones_ids = [self._drone_ids(i) for i in range(drones)]
+        first = self.drones_ids[0]
+        self.joint_name, self.body_id, self.camera_id = first.joint_name, first.body_id, first.camera_id
+        self.qpos_adr, self.qvel_adr, self.actuator_ids = first.qpos_adr, first.qvel_adr, first.actuator_ids
         adr, h, w = m.tex_adr[self.texture_id], m.tex_height[self.texture_id], m.tex_width[self.texture_id]
         if int(m.tex_nchannel[self.texture_id]) != 3:
             raise RuntimeError(f"the weed_field texture compiled with {m.tex_nchannel[self.texture_id]} "
                                "channels, not 3")
         self._tex_view = m.tex_data[adr: adr + h * w * 3].reshape(h, w, 3)
         self.texture_version = 0  # bumped on every set_ground; renderers re-upload when it changes
+
+    def _drone_ids(self, drone: int) -> DroneIds:
+        m, prefix = self.model, drone_prefix(drone)
+        named = self.physics.named.model
+        joint = free_joint(m, prefix)
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, joint)
+        camera = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, prefix + "down")
+        return DroneIds(name, int(m.jnt_bodyid[joint]), camera,
+                        int(named.jnt_qposadr[name]), int(named.jnt_dofadr[name]),
+                        np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"{prefix}rotor{i}")
+                                  for i in range(4)]))
+
+    @property
+    def drones(self) -> int:
+        """Number of quadrotors in the scene."""
+        return len(self.drones_ids)
 
     @property
     def texture_shape(self) -> tuple[int, int]:
@@ -190,13 +235,21 @@ class WeedScene:
         self.texture_version += 1
 
     def reset(self, xyz, yaw: float = 0.0) -> None:
-        """Puts the drone at rest at ``xyz`` [m] with rotors at hover thrust."""
+        """Puts the (first) drone at rest at ``xyz`` [m] with rotors at hover thrust."""
+        self.reset_team([xyz], [yaw])
+
+    def reset_team(self, xyzs, yaws=None) -> None:
+        """Puts drones 0, 1, ... at rest at ``xyzs`` [m] (one each, in order; yaws [rad] default 0) with
+        rotors at hover thrust; drones not named stay where the model puts them."""
         mujoco.mj_resetData(self.model, self.data)
-        q = self.data.qpos[self.qpos_adr: self.qpos_adr + 7]
-        q[:3] = xyz
-        q[3:] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+        yaws = [0.0] * len(xyzs) if yaws is None else yaws
+        for ids, xyz, yaw in zip(self.drones_ids, xyzs, yaws):
+            q = self.data.qpos[ids.qpos_adr: ids.qpos_adr + 7]
+            q[:3] = xyz
+            q[3:] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
         self.data.act[:] = self.quad.hover_thrust
-        self.data.ctrl[self.actuator_ids] = self.quad.hover_thrust
+        for ids in self.drones_ids:
+            self.data.ctrl[ids.actuator_ids] = self.quad.hover_thrust
         mujoco.mj_forward(self.model, self.data)
 
     @property

@@ -7,8 +7,11 @@ grid, the camera footprint of the last read-out (from the estimated pose) and th
 mission time (with its colour bar); trace(P) over the ground-truth ROI against mission time; and,
 in the title bar, mission time, altitude, wind and the state estimate's error against the truth.
 Frames are taken every ``speedup / fps`` seconds of simulated time, so a 200 s mission at the
-defaults (10 fps, 4x) gives a 50 s video. Which planner flies, and the comparison plot, are
-``ipp-bench demo``'s business (:mod:`ipp_bench.eval.demo`), above the planners.
+defaults (10 fps, 4x) gives a 50 s video. A team's video (:class:`~ipp_bench.sim.team.MuJoCoTeamEnv`)
+shows a chase view of every drone, every drone's last frame with its weed mask, and on the maps every
+drone's path, position and camera footprint (one colour per drone) over the shared belief.
+Which planner flies, and the comparison plot, are ``ipp-bench demo``'s business
+(:mod:`ipp_bench.eval.demo`), above the planners.
 
 The same arguments give the same video, frame for frame and byte for byte: physics, rendering,
 sensor noise and planners are seeded, and the encoder runs with a fixed thread count.
@@ -35,6 +38,10 @@ def make_sim_env(task: str, budget: float | None = None):
 
 
 # -- video ---------------------------------------------------------------------------------------
+#: a team's drones on the maps: dot, footprint (the first drone red, as a single drone's dot)
+DRONE_COLOURS = ("red", "cyan", "yellow", "lime", "orange", "white", "deepskyblue", "violet")
+
+
 class DemoVideo:
     """Composes and encodes the demo frames of one episode.
 
@@ -66,6 +73,7 @@ class DemoVideo:
 
         self.env, self.mission = env, env.mission
         self.world = env.world
+        self.n = len(self.world.flights)  # drones: a team's video shows each of them
         self.size, self.fps, self.hold_s = size, int(fps), float(hold_s)
         self.interval = float(speedup) / float(fps)  # [s] of mission time between frames
         self.next_t = 0.0
@@ -104,9 +112,12 @@ class DemoVideo:
             return ax
 
         square = 0.235 * figsize[0] / figsize[1]  # figure height fraction of a 0.235-wide square
-        ax_chase = axes([0.01, 0.45, 0.48, 0.46], "chase view")
-        ax_cam = axes([0.51, 0.91 - square, 0.235, square], "last measured frame (as read out)")
-        ax_mask = axes([0.755, 0.91 - square, 0.235, square], "weed mask, per-cell fractions")
+        if self.n == 1:
+            ax_chase = axes([0.01, 0.45, 0.48, 0.46], "chase view")
+            ax_cam = axes([0.51, 0.91 - square, 0.235, square], "last measured frame (as read out)")
+            ax_mask = axes([0.755, 0.91 - square, 0.235, square], "weed mask, per-cell fractions")
+        else:
+            chase_axes, cam_axes = self._team_axes(axes, figsize)
         ax_truth = map_axes([0.035, 0.06, 0.17, 0.30], "ground truth (weed fraction)")
         ax_truth.imshow(self.mission.truth, origin="lower", extent=extent, vmin=0, vmax=1, cmap="viridis")
         ax_mean = map_axes([0.245, 0.06, 0.17, 0.30], "belief mean")
@@ -123,19 +134,23 @@ class DemoVideo:
         tbar = fig.colorbar(ScalarMappable(Normalize(0.0, budget), colormaps["plasma"]), cax=cax)
         tbar.ax.tick_params(labelsize=7)
         tbar.set_label("path colour: mission time [s]", fontsize=7, labelpad=2)
+        # per drone: its footprint on the three maps, its path and position on the belief maps
         self._paths, self._drones, self._footprints = [], [], []
-        for ax in (ax_truth, ax_mean, ax_std):
-            (fp,) = ax.plot([], [], "-", color="cyan", lw=1.2, animated=True)
-            self._footprints.append(fp)
+        for k in range(self.n):
+            colour = "cyan" if self.n == 1 else DRONE_COLOURS[k % len(DRONE_COLOURS)]
+            for ax in (ax_truth, ax_mean, ax_std):
+                (fp,) = ax.plot([], [], "-", color=colour, lw=1.2, animated=True)
+                self._footprints.append(fp)
         self._cell_texts = []
-        self._ax_mask = ax_mask
-        for ax in (ax_mean, ax_std):
-            lc = LineCollection([], cmap="plasma", linewidths=2.0, animated=True)
-            lc.set_clim(0, budget)
-            ax.add_collection(lc)
-            self._paths.append(lc)
-            (dot,) = ax.plot([], [], "o", ms=6, mfc="red", mec="white", animated=True)
-            self._drones.append(dot)
+        for k in range(self.n):
+            for ax in (ax_mean, ax_std):
+                lc = LineCollection([], cmap="plasma", linewidths=2.0, animated=True)
+                lc.set_clim(0, budget)
+                ax.add_collection(lc)
+                self._paths.append(lc)
+                face = "red" if self.n == 1 else DRONE_COLOURS[k % len(DRONE_COLOURS)]
+                (dot,) = ax.plot([], [], "o", ms=6, mfc=face, mec="white", animated=True)
+                self._drones.append(dot)
         ax_tr = fig.add_axes([0.685, 0.09, 0.245, 0.27])
         ax_tr.set_title("trace(P) over the ROI", fontsize=10)
         ax_tr.set_xlabel("mission time [s]", fontsize=8)
@@ -152,15 +167,40 @@ class DemoVideo:
                              "use a size whose width is a multiple of 16 px per 12.8 in, e.g. 1280x720")
         self._background = self.canvas.copy_from_bbox(fig.bbox)
         # pixel boxes (row0, row1, col0, col1) of the pasted images, from the drawn axes
-        self._box_chase, self._box_cam, self._box_mask, self._box_mean, self._box_std = (
-            self._box(ax) for ax in (ax_chase, ax_cam, ax_mask, ax_mean, ax_std))
-        side = min(self._box_cam[1] - self._box_cam[0], self._box_cam[3] - self._box_cam[2])
-        self._box_cam = self._square(self._box_cam, side)
-        self._box_mask = self._square(self._box_mask, side)
+        self._box_mean, self._box_std = self._box(ax_mean), self._box(ax_std)
+        if self.n == 1:
+            self._box_chase, self._box_cam, self._box_mask = (self._box(ax) for ax in (ax_chase, ax_cam, ax_mask))
+            side = min(self._box_cam[1] - self._box_cam[0], self._box_cam[3] - self._box_cam[2])
+            self._box_cam = self._square(self._box_cam, side)
+            self._box_mask = self._square(self._box_mask, side)
+        else:
+            self._chases = [chase_camera(self.world.scene, drone=k) for k in range(self.n)]
+            self._boxes_chase = [self._box(ax) for ax in chase_axes]
+            self._boxes_cam = []
+            for ax in cam_axes:
+                box = self._box(ax)
+                self._boxes_cam.append(self._square(box, min(box[1] - box[0], box[3] - box[2])))
         shape = self.mission.truth.shape
         self._map_index = [self._upsample_index(b, shape) for b in (self._box_mean, self._box_std)]
 
         self._writer = H264Writer(path, (w, h), self.fps, crf)
+
+    def _team_axes(self, axes, figsize) -> tuple[list, list]:
+        """A team's panels: a chase view per drone side by side, and each drone's frame with its weed
+        mask in a grid of squares beside them."""
+        n, gap = self.n, 0.01
+        width = (0.48 - gap * (n - 1)) / n
+        chase = [axes([0.01 + k * (width + gap), 0.45, width, 0.46], f"UAV {k} chase view") for k in range(n)]
+        per_row = n if n <= 2 else math.ceil(math.sqrt(n))
+        rows = math.ceil(n / per_row)
+        side_w = min((0.48 - gap * (per_row - 1)) / per_row, (0.46 / rows - 0.04) * figsize[1] / figsize[0])
+        side_h = side_w * figsize[0] / figsize[1]
+        cams = []
+        for k in range(n):
+            r, c = divmod(k, per_row)
+            cams.append(axes([0.51 + c * (side_w + gap), 0.91 - side_h - r * (side_h + 0.04), side_w, side_h],
+                             f"UAV {k} frame, weed mask"))
+        return chase, cams
 
     def _box(self, ax) -> tuple[int, int, int, int]:
         """Inner pixel box of ``ax`` as (row0, row1, col0, col1), rows from the top."""
@@ -187,9 +227,11 @@ class DemoVideo:
 
     # -- per step / per frame -------------------------------------------------------------------
     def hook(self, mission) -> None:
-        """Step hook of the mission: grabs every frame that is due."""
-        while mission.flight.time_s >= self.next_t - 1e-9:
-            self.grab(mission.flight.time_s)
+        """Step hook of the mission (a team's: of its drones): grabs every frame that is due."""
+        del mission  # the simulated time is the world's
+        t = self.world.flight.time_s
+        while t >= self.next_t - 1e-9:
+            self.grab(t)
             self.next_t += self.interval
 
     def grab(self, t: float) -> None:
@@ -200,6 +242,8 @@ class DemoVideo:
 
     def compose(self, t: float) -> np.ndarray:
         """The (H, W, 3) uint8 frame at mission time ``t``."""
+        if self.n > 1:
+            return self._compose_team(t)
         mission, world = self.mission, self.world
         renderer = world.renderer
         self.canvas.restore_region(self._background)
@@ -254,6 +298,65 @@ class DemoVideo:
                               f"{np.degrees(np.arctan2(-wind[1], -wind[0])) % 360:3.0f} deg | estimate - truth "
                               f"{err:4.2f} m | uncertainty red. {red:5.1f} %")
         for artist in [*self._animated, *self._cell_texts]:
+            if artist.axes is not None:
+                artist.axes.draw_artist(artist)
+            else:
+                self.fig.draw_artist(artist)
+        return np.ascontiguousarray(buf[..., :3])
+
+    def _compose_team(self, t: float) -> np.ndarray:
+        """A team's frame at mission time ``t``: every drone's chase view, frame, path and footprint."""
+        mission, world = self.mission, self.world
+        renderer = world.renderer
+        self.canvas.restore_region(self._background)
+        buf = np.asarray(self.canvas.buffer_rgba())
+        rate = min(1.0, self.interval / 2.0) if self.frames else 1.0
+        for k, (cam, (r0, r1, c0, c1)) in enumerate(zip(self._chases, self._boxes_chase)):
+            cam.azimuth = self._follow(cam.azimuth, self._aim(world.scene, drone=k), rate)
+            buf[r0:r1, c0:c1, :3] = renderer.render(cam, c1 - c0, r1 - r0)
+        for k, (r0, r1, c0, c1) in enumerate(self._boxes_cam):
+            reading = world.last_readings[k]
+            side = r1 - r0
+            if reading is not None:
+                frame, weed = reading.frame, reading.weed_mask.astype(bool)
+            else:
+                frame = renderer.render(renderer.down_camera(k) if k else None, side, side)
+                weed = world.cfg.segmenter(frame).astype(bool)
+            shaded = (frame * 0.35).astype(np.uint8)
+            shaded[weed] = (255, 40, 200)
+            idx = (np.arange(side) * frame.shape[0] // side)
+            buf[r0:r1, c0:c1, :3] = shaded[np.ix_(idx, idx)]
+        shape = mission.truth.shape
+        values = (mission.belief.mean.reshape(shape), np.sqrt(np.maximum(mission.belief.variance, 0.0)).reshape(shape))
+        for (cmap, norm), box, index, v in zip(self._maps, (self._box_mean, self._box_std), self._map_index, values):
+            r0, r1, c0, c1 = box
+            buf[r0:r1, c0:c1, :3] = cmap(norm(v), bytes=True)[..., :3][index]
+        for k, flight in enumerate(world.flights):
+            here = flight.position
+            path = np.array([p for p in mission.paths[k] if p[0] <= t + 1e-9] + [(t, *here)])
+            seg = np.stack([path[:-1, 1:3], path[1:, 1:3]], axis=1)
+            for lc, dot in zip(self._paths[2 * k: 2 * k + 2], self._drones[2 * k: 2 * k + 2]):
+                lc.set_segments(seg)
+                lc.set_array(path[1:, 0])
+                dot.set_data([here[0]], [here[1]])
+            reading = world.last_readings[k]
+            fx, fy = [], []
+            if reading is not None and reading.footprint is not None:
+                fx = list(reading.footprint[:, 0]) + [reading.footprint[0, 0]]
+                fy = list(reading.footprint[:, 1]) + [reading.footprint[0, 1]]
+            for fp in self._footprints[3 * k: 3 * k + 3]:
+                fp.set_data(fx, fy)
+        hist = [(r.time_s, r.trace_roi) for r in mission.history if r.time_s <= t + 1e-9]
+        hist.append((t, mission.history[-1].trace_roi))
+        ht = np.array(hist)
+        self._trace.set_data(ht[:, 0], ht[:, 1])
+        red = mission.history[-1].uncertainty_reduction_pct
+        wind = world.flight.wind
+        heights = " ".join(f"{f.position[2]:4.1f}" for f in world.flights)
+        self._status.set_text(f"t {t:5.1f} s | {heights} m | wind {np.hypot(wind[0], wind[1]):3.1f} m/s from "
+                              f"{np.degrees(np.arctan2(-wind[1], -wind[0])) % 360:3.0f} deg | {self.n} UAVs, one "
+                              f"belief | uncertainty red. {red:5.1f} %")
+        for artist in self._animated:
             if artist.axes is not None:
                 artist.axes.draw_artist(artist)
             else:

@@ -85,8 +85,11 @@ def main(argv: list[str] | None = None) -> int:
         import ipp_bench.envs as envs
 
         spec = envs.task_spec(args.task)
-        if "deployment" not in spec.tags:
-            raise ValueError(f"--task {args.task!r} is not a MuJoCo deployment: valid are {envs.tagged('deployment')}")
+        from ipp_bench.envs.registry import is_team_task
+
+        single = [t for t in envs.tagged("deployment") if not is_team_task(t)]
+        if "deployment" not in spec.tags or is_team_task(spec.id):
+            raise ValueError(f"--task {args.task!r} is not a single-drone MuJoCo deployment: valid are {single}")
         if args.planner is not None:
             from ipp_bench.planners import make_planner
 

@@ -189,6 +189,7 @@ class CameraReading:
     binning: int  # read-out binning factor of the frame
     footprint: np.ndarray | None = None  # (4, 2) ground corners of the frame from the estimated pose [m]
     cell_pixels: dict | None = None  # seen cell -> (x, y) pixel of its centre in ``frame`` (estimated pose)
+    drone: int = 0  # whose camera (a team scene)
 
 
 class WeedWorld:
@@ -202,16 +203,19 @@ class WeedWorld:
         cfg: deployment settings.
         airframe: a PyMJCF quadrotor to fly instead of the shipped one (see :mod:`ipp_bench.sim.scene`);
             its camera's field of view must equal the sensor model's.
+        drones: quadrotors in the scene (a team): ``flights[i]`` flies drone i, ``camera(drone=i)``
+            reads its camera; ``flight`` is the first drone's loop.
     """
 
     def __init__(self, grid: GridConfig, sensor: SensorConfig, speed: float = 2.0,
-                 cfg: SimConfig = SimConfig(), airframe=None) -> None:
+                 cfg: SimConfig = SimConfig(), airframe=None, drones: int = 1) -> None:
         self.grid, self.cfg, self.sensor_cfg = grid, cfg, sensor
         # one OpenCV thread per process, as for BLAS (ipp_bench._threads): on 2 shared cores a second
         # thread only waits for the first; parallelism comes from worker processes
         cv2.setNumThreads(1)
         shipped = QuadrotorParams(camera_fovy_deg=sensor.fov_deg, rotor_model=cfg.rotor_model)
-        self.scene = WeedScene(grid.rows, grid.cols, grid.resolution, shipped, cfg.scene, airframe=airframe)
+        self.scene = WeedScene(grid.rows, grid.cols, grid.resolution, shipped, cfg.scene, airframe=airframe,
+                               drones=drones)
         self.quad = self.scene.quad
         if abs(self.quad.camera_fovy_deg - sensor.fov_deg) > 1e-9:
             raise ValueError(f"airframe: camera 'down' has fovy {self.quad.camera_fovy_deg} deg, the sensor model "
@@ -220,8 +224,9 @@ class WeedWorld:
             raise ValueError(f"airframe: its rotor actuators are the {self.quad.rotor_model!r} model, "
                              f"SimConfig.rotor_model is {cfg.rotor_model!r} (filterexact dynamics: 'thrust'; "
                              "none: 'speed')")
-        self.flight = Flight(self.scene, speed=speed, cfg=cfg.flight, gains=cfg.gains,
-                             disturbances=cfg.disturbances)
+        self.flights = [Flight(self.scene, speed=speed, cfg=cfg.flight, gains=cfg.gains, disturbances=cfg.disturbances,
+                               drone=i, wind_owner=i == 0) for i in range(self.scene.drones)]
+        self.flight = self.flights[0]
         self.renderer = SceneRenderer(self.scene)
         size = cfg.camera.image_size
         self._projectors: dict[int, GroundProjector] = {}
@@ -232,7 +237,8 @@ class WeedWorld:
         self._pixel_rng = np.random.default_rng(0)
         self.weed_mask_truth: np.ndarray | None = None
         self._texture_key: tuple | None = None
-        self.last_reading: CameraReading | None = None
+        self.last_reading: CameraReading | None = None  # the latest read-out, of any drone
+        self.last_readings: list[CameraReading | None] = [None] * self.scene.drones  # each drone's latest
         self._sun0 = (self.scene.model.light_dir[self.scene.light_id].copy(),
                       self.scene.model.light_diffuse[self.scene.light_id].copy(),
                       self.scene.model.light_ambient[self.scene.light_id].copy())
@@ -270,6 +276,7 @@ class WeedWorld:
             self.weed_mask_truth = mask
             self._texture_key = key
         self.last_reading = None
+        self.last_readings = [None] * self.scene.drones
 
     def begin_episode(self, truth: np.ndarray, seed: int) -> None:
         """Texture, conditions (sun, exposure, white balance), wind and estimator errors of one episode.
@@ -283,6 +290,8 @@ class WeedWorld:
         self._pixel_rng = np.random.default_rng(pix_seed)
         self._apply_sun()
         self.flight.disturbance_seed = dist_seed
+        for i, flight in enumerate(self.flights[1:], start=1):  # a team's other drones: their own estimators
+            flight.disturbance_seed = int(np.random.SeedSequence([dist_seed, i]).generate_state(1, np.uint64)[0])
 
     def _apply_sun(self) -> None:
         """Sun direction into the scene's light; the auto-exposure normalises the ground's irradiance."""
@@ -304,15 +313,16 @@ class WeedWorld:
         s = self.sensor_cfg
         return s.binning if (self.cfg.pixel_binning and altitude > s.binning_altitude and s.binning > 1) else 1
 
-    def camera(self, binning: int | None = None) -> CameraReading:
+    def camera(self, binning: int | None = None, drone: int = 0) -> CameraReading:
         """Renders the downward camera, forms the image, segments it and projects it with the estimated pose.
 
         ``binning`` forces the read-out's binning factor (calibration); default: the sensor's rule
-        at the estimated altitude.
+        at the estimated altitude. ``drone``: whose camera (a team scene).
         """
         size = self.cfg.camera.image_size
-        raw = self.renderer.render(None, size, size)
-        est_pos, est_cam_pos, est_cam_mat = self.flight.estimated_camera_pose()
+        flight = self.flights[drone]
+        raw = self.renderer.render(None if drone == 0 else self.renderer.down_camera(drone), size, size)
+        est_pos, est_cam_pos, est_cam_mat = flight.estimated_camera_pose()
         if binning is None:
             binning = self.binning_at(float(est_pos[2]))
         cam = self.cfg.camera
@@ -321,8 +331,8 @@ class WeedWorld:
         else:
             cond = dataclasses.replace(self.conditions, exposure_gain=self.conditions.exposure_gain * self._exposure())
             proj = self.projector(1)
-            blur = motion_blur_px(cam, float(self.flight.position[2]), self.flight.velocity,
-                                  self.flight.angular_velocity, proj.focal) if cam.exposure_s > 0 else (0.0, 0.0)
+            blur = motion_blur_px(cam, float(flight.position[2]), flight.velocity,
+                                  flight.angular_velocity, proj.focal) if cam.exposure_s > 0 else (0.0, 0.0)
             frame = form_image(raw, cam, cond, self._pixel_rng, binning, blur)
         proj = self.projector(binning)
         if self.cfg.pipeline == "v0":
@@ -332,10 +342,11 @@ class WeedWorld:
         else:
             weed = self.cfg.segmenter(frame)
             fraction, seen, _ = proj.cell_fractions(weed, est_cam_pos, est_cam_mat)
-        reading = CameraReading(frame, weed, fraction, seen, self.flight.position, est_pos, binning,
+        reading = CameraReading(frame, weed, fraction, seen, flight.position, est_pos, binning,
                                 proj.corners_on_ground(est_cam_pos, est_cam_mat),
-                                self._cell_pixels(seen, proj, est_cam_pos, est_cam_mat))
+                                self._cell_pixels(seen, proj, est_cam_pos, est_cam_mat), drone)
         self.last_reading = reading
+        self.last_readings[drone] = reading
         return reading
 
     def _cell_pixels(self, seen: np.ndarray, proj: GroundProjector, cam_pos, cam_mat) -> dict:
@@ -349,14 +360,14 @@ class WeedWorld:
 
 
     def read_camera(self, sensor: Sensor, rng: np.random.Generator,
-                    truth: np.ndarray | None = None) -> tuple[Observation | None, np.ndarray | None]:
+                    truth: np.ndarray | None = None, drone: int = 0) -> tuple[Observation | None, np.ndarray | None]:
         """A sensor read-out from the camera: (Observation, z), or (None, None) when nothing usable was seen.
 
         The read-out's layout (cells, H, R) is the sensor model's at the estimated position; z is
         H times the camera's per-cell fractions ("camera"), plus the sensor model's noise
-        ("camera+noise", v0), or H times the ground truth ``truth`` ("truth").
+        ("camera+noise", v0), or H times the ground truth ``truth`` ("truth"). ``drone``: whose camera.
         """
-        reading = self.camera()
+        reading = self.camera(drone=drone)
         obs = sensor.observe(reading.estimated_xyz)
         if obs is None:
             return None, None

@@ -13,10 +13,13 @@ import pytest
 pytest.importorskip("mujoco")
 
 import ipp_bench.envs as envs  # noqa: E402
+from ipp_bench.envs.registry import is_team_task  # noqa: E402
 from ipp_bench.eval.runner import run_episode  # noqa: E402
 from ipp_bench.planners import is_team_planner, planner_names  # noqa: E402
 
-MUJOCO_TASKS = sorted(t for t, s in envs.TASKS.items() if s.entry_point.startswith("ipp_bench.sim"))
+MUJOCO_TASKS = sorted(t for t, s in envs.TASKS.items()
+                      if s.entry_point.startswith("ipp_bench.sim") and not is_team_task(t))
+TEAM_TASKS = sorted(t for t, s in envs.TASKS.items() if s.entry_point.startswith("ipp_bench.sim") and is_team_task(t))
 # cheap settings: the budget's end, not the quality of the look-ahead, is under test
 CHEAP = {"mcts": "mcts:simulations=8", "cmaes": "cmaes:max_evals=24"}
 
@@ -46,3 +49,30 @@ def test_every_planner_flies_to_the_end_of_the_budget(envs_by_task_and_budget, t
         # the end: nothing the clock affords is left (graph), or no leg worth flying (continuous)
         assert not env.action_masks().any() or planner in ("coverage", "cmaes")
         assert np.isfinite(mission.metrics()["trace_roi"])
+
+
+@pytest.fixture(scope="module")
+def team_envs_by_task_and_budget():
+    made = {(t, b): envs.make_env(t, budget_s=b, report_times=[b], image_size=48)
+            for t in TEAM_TASKS for b in (12.0, 17.0)}
+    yield made
+    for e in made.values():
+        e.close()
+
+
+@pytest.mark.parametrize("planner", planner_names())
+@pytest.mark.parametrize("budget", [12.0, 17.0])
+@pytest.mark.parametrize("task", TEAM_TASKS)
+def test_every_planner_flies_every_drone_of_a_team_to_the_end_of_its_budget(team_envs_by_task_and_budget, task,
+                                                                             planner, budget):
+    if planner == "attention":
+        pytest.importorskip("torch")
+    env = team_envs_by_task_and_budget[(task, budget)]
+    for seed in (0, 1):
+        result = run_episode(task, CHEAP.get(planner, planner), seed, env=env)
+        assert result.decisions >= env.team.size
+        for i, seat in enumerate(env.seats):
+            assert seat.mission.time_s <= seat.mission.budget_s + 1e-9
+            assert not env.uav_mask(i).any() or planner in ("coverage", "cmaes", "team-coverage")
+        assert env.sim_team.legs == [None] * env.team.size  # every committed leg was flown to its end
+        assert np.isfinite(env.mission.metrics()["trace_roi"])

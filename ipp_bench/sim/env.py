@@ -35,7 +35,7 @@ from ipp_bench.envs.graph import GraphIPPEnv
 from ipp_bench.envs.panels import render_mission
 from ipp_bench.sim.mission import MuJoCoMission
 from ipp_bench.sim.render import azimuth_to_centre, chase_camera
-from ipp_bench.sim.world import SimConfig, WeedWorld, sim_field_owners
+from ipp_bench.sim.world import SimConfig, WeedWorld, split_sim_settings
 
 
 def _spec_of(name: str, space) -> specs.Array:
@@ -104,17 +104,9 @@ class MuJoCoIPPEnv(GraphIPPEnv, control.Task):
     def __init__(self, config: IPPConfig | dict | None = None, render_mode: str | None = None,
                  task_id: str | None = None, sim: SimConfig | None = None, sim_section: dict | None = None,
                  airframe=None, **overrides: Any):
-        sim_names = sim_field_owners()
-        sim_overrides = {k: overrides.pop(k) for k in list(overrides) if k in sim_names}
-        try:
-            super().__init__(config, render_mode=render_mode, task_id=task_id, **overrides)
-        except ValueError as err:
-            if str(err).startswith("unknown config field"):
-                raise ValueError(f"{err}; or a sim field: {sorted(sim_names)}") from None
-            raise
-        if sim is None:
-            sim = SimConfig.from_dict(sim_section) if sim_section is not None else SimConfig()
-        self.sim_config = sim.replace(**sim_overrides) if sim_overrides else sim
+        self.sim_config = split_sim_settings(
+            lambda rest: super(MuJoCoIPPEnv, self).__init__(config, render_mode=render_mode, task_id=task_id, **rest),
+            overrides, sim, sim_section)
         self.world = WeedWorld(self.config.grid, self.config.sensor, self.config.mission.speed, self.sim_config,
                                airframe=airframe)
         self._chase = chase_camera(self.world.scene)

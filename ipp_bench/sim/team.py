@@ -38,7 +38,7 @@ from ipp_bench.sensor import Observation
 from ipp_bench.sim.controller import ContinuousLeg
 from ipp_bench.sim.flight import step_together
 from ipp_bench.sim.render import azimuth_to_centre, chase_camera
-from ipp_bench.sim.world import SimConfig, WeedWorld, sim_field_owners
+from ipp_bench.sim.world import SimConfig, WeedWorld, split_sim_settings
 from ipp_bench.team import TeamConfig, TeamMission
 
 _TOL = 1e-9
@@ -254,17 +254,10 @@ class MuJoCoTeamEnv(TeamGraphEnv):
     def __init__(self, config: IPPConfig | dict | None = None, team: TeamConfig | dict | None = None,
                  render_mode: str | None = None, task_id: str | None = None, sim: SimConfig | None = None,
                  sim_section: dict | None = None, airframe=None, **overrides: Any):
-        sim_names = sim_field_owners()
-        sim_overrides = {k: overrides.pop(k) for k in list(overrides) if k in sim_names}
-        try:
-            super().__init__(config, team=team, render_mode=render_mode, task_id=task_id, **overrides)
-        except ValueError as err:
-            if str(err).startswith("unknown config field"):
-                raise ValueError(f"{err}; or a sim field: {sorted(sim_names)}") from None
-            raise
-        if sim is None:
-            sim = SimConfig.from_dict(sim_section) if sim_section is not None else SimConfig()
-        sim = sim.replace(**sim_overrides) if sim_overrides else sim
+        sim = split_sim_settings(
+            lambda rest: super(MuJoCoTeamEnv, self).__init__(config, team=team, render_mode=render_mode,
+                                                             task_id=task_id, **rest),
+            overrides, sim, sim_section)
         if sim.flight.mode != "continuous":
             invalid("sim.flight.mode", sim.flight.mode, "'continuous' (a team's drones fly their legs together, "
                     "each leg's duration known when it is committed; stop-and-go legs have none)")

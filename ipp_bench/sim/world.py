@@ -15,7 +15,9 @@ matters).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -151,6 +153,24 @@ def sim_field_owners() -> dict[str, str]:
             assert f.name not in owners, f"sim field {f.name} is not unique"
             owners[f.name] = ""
     return owners
+
+
+def split_sim_settings(init: Callable[[dict[str, Any]], None], overrides: dict[str, Any], sim: SimConfig | None,
+                       sim_section: dict | None) -> SimConfig:
+    """A deployment env's settings: ``overrides`` that name a :class:`SimConfig` leaf field set it (on
+    ``sim``, else the task file's ``sim_section``, else the defaults); ``init`` is called with the rest
+    (the problem's fields), and an unknown name is said once, with both lists of valid names."""
+    names = sim_field_owners()
+    sim_overrides = {k: v for k, v in overrides.items() if k in names}
+    try:
+        init({k: v for k, v in overrides.items() if k not in names})
+    except ValueError as err:
+        if str(err).startswith("unknown config field"):
+            raise ValueError(f"{err}; or a sim field: {sorted(names)}") from None
+        raise
+    if sim is None:
+        sim = SimConfig.from_dict(sim_section) if sim_section is not None else SimConfig()
+    return sim.replace(**sim_overrides) if sim_overrides else sim
 
 
 def _coerce(default, value, where: str):

@@ -155,3 +155,16 @@ def test_the_dm_control_view_of_a_team_task_is_refused_in_one_line():
     with pytest.raises(ValueError, match="is a team .*a dm_control Environment flies one drone") as err:
         load(TEAM)
     assert "\n" not in str(err.value)
+
+
+def test_render_shows_a_chase_view_of_every_drone_above_the_maps():
+    env = make_env(TEAM, render=True, budget_s=10.0)
+    try:
+        env.reset(seed=0)
+        frame = env.render()
+        half = (frame.shape[1] - 4) // 2
+        assert frame.dtype == np.uint8 and frame.shape[1] >= 2 * half
+        top = frame[: half // 2]
+        assert not np.array_equal(top[:, :half], top[:, half + 4: 2 * half + 4])  # each view follows its drone
+    finally:
+        env.close()

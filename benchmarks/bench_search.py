@@ -15,7 +15,9 @@ Figures:
   ratio, and the same for ``cmaes:evaluation=batched`` against ``cmaes:evaluation=reference``; with the
   machine's load average (``os.getloadavg``) before and after each task, since both are timed on a shared
   machine. The fast planners' numba kernels are compiled once per process, when such a planner is first
-  reset (never inside a decision); the first line says how long that took;
+  reset (never inside a decision); the first line says how long that took. ``mcts:search=lowrank`` lays out
+  every roadmap node's legs when it is first reset on a roadmap (kept for the process): the longest reset
+  of the fast MCTS is printed with its times;
 - ``--agreement N``: N decision states of real episodes (the reference flying, fixed seeds, split
   over the v1 and v2 tasks of ``--agreement-tasks``), both searches from each with the same random
   state: the share of identical moves, and for each other one why the two trees parted (the first
@@ -91,11 +93,15 @@ def time_mcts(task: str, decisions: int, seed: int, spec: str = MCTS) -> dict:
     planners = dict(zip(("new", "ref"), _pair(spec, "search=reference")))
     times: dict[str, list] = {"new": [], "ref": []}
     same = ep = 0
+    resets = []  # [s] of the fast planner's resets (its first on a roadmap lays out every node's legs)
     while len(times["new"]) < decisions:
         obs = {}
         for k in envs:
             obs[k], _ = envs[k].reset(seed=seed + ep)
+            t0 = time.perf_counter()
             planners[k].reset(view_for(planners[k], envs[k].unwrapped), seed + ep)
+            if k == "new":
+                resets.append(time.perf_counter() - t0)
         done = False
         while not done and len(times["new"]) < decisions:
             _sync(planners["ref"], planners["new"])
@@ -109,7 +115,7 @@ def time_mcts(task: str, decisions: int, seed: int, spec: str = MCTS) -> dict:
                 obs[k], _, term, trunc, _ = envs[k].step(moves["ref"])
             done = term or trunc
         ep += 1
-    return {"new": np.asarray(times["new"]), "ref": np.asarray(times["ref"]), "same": same}
+    return {"new": np.asarray(times["new"]), "ref": np.asarray(times["ref"]), "same": same, "resets": resets}
 
 
 def time_cmaes(task: str, decisions: int, seed: int, spec: str = CMAES) -> dict:
@@ -154,7 +160,8 @@ def bench_timing(args) -> None:
             before = _load()
             r = fn(task, args.decisions, args.seed)
             ref, new = np.median(r["ref"]) * 1e3, np.median(r["new"]) * 1e3
-            extra = (f"same move {r['same']}/{r['new'].size}" if name == "mcts"
+            extra = (f"same move {r['same']}/{r['new'].size}; new planner's resets {max(r['resets']):.2f} s at most "
+                     f"({len(r['resets'])})" if name == "mcts"
                      else f"waypoints within 1 mm: {int(np.sum(r['dist'] < 1e-3))}/{r['dist'].size}")
             print(f"{task:<28} {name:<20} {r['new'].size:>3} {ref:>13.1f} {new:>9.1f} {ref / new:>6.1f}x  "
                   f"{before} / {_load()}; totals {r['ref'].sum():.1f} s / {r['new'].sum():.1f} s; {extra}",
@@ -163,17 +170,28 @@ def bench_timing(args) -> None:
 
 # -- agreement ----------------------------------------------------------------------------------------
 def _traced(planner) -> list:
-    """Record every edge the search of ``planner`` takes: (node, elapsed, action, gains, order, rates)."""
+    """Record every tree edge the search of ``planner`` adds: (node, elapsed, action, gains, order, rates) (the
+    rollouts' moves are left out: the fast search draws them in compiled code)."""
     inner = planner._reference if getattr(planner, "_reference", None) is not None else planner
     log: list = []
-    original = inner._transition
+    original, original_rollout = inner._transition, inner._rollout
+    rolling = [False]
 
     def transition(state, action):
-        log.append((state.node, round(state.elapsed, 9), int(action), state.gains.copy(), state.order.copy(),
-                    state.gains / state.costs))
+        if not rolling[0]:
+            log.append((state.node, round(state.elapsed, 9), int(action), state.gains.copy(), state.order.copy(),
+                        state.gains / state.costs))
         return original(state, action)
 
+    def rollout(state):
+        rolling[0] = True
+        try:
+            return original_rollout(state)
+        finally:
+            rolling[0] = False
+
     inner._transition = transition
+    inner._rollout = rollout
     return log
 
 
@@ -185,19 +203,21 @@ def _why(log_new: list, log_ref: list) -> str:
             scale = max(np.abs(g_ref).max(), 1e-300)
             gap = float(np.abs(g_new - g_ref).max() / scale)
             if a[:2] != b[:2]:
-                return f"edge {i}: different states ({a[:2]} / {b[:2]})"
+                return (f"tree edge {i}: different states ({a[:2]} / {b[:2]}): the rollouts before it returned "
+                        f"differently (a draw, or rounding in a UCT tie); gains there differ by {gap:.1e} of the best")
             if not np.array_equal(a[4], b[4]):
                 k = int(np.flatnonzero(a[4] != b[4])[0])
                 x, y = int(a[4][k]), int(b[4][k])
                 rate = b[5]
                 tie = abs(rate[x] - rate[y]) / max(np.abs(rate).max(), 1e-300)
-                return (f"edge {i}: expansion order differs at legs {x}/{y}, whose gains per second differ by "
+                return (f"tree edge {i}: expansion order differs at legs {x}/{y}, whose gains per second differ by "
                         f"{tie:.1e} of the best (a tie); the gains there differ by {gap:.1e} of the best")
-            return (f"edge {i}: move {a[2]} / {b[2]} from the same state (a rollout draw or UCT pick); "
+            return (f"tree edge {i}: move {a[2]} / {b[2]} from the same state (a UCT pick); "
                     f"gains there differ by {gap:.1e} of the best")
     if len(log_new) != len(log_ref):
-        return f"edge logs of different lengths ({len(log_new)} / {len(log_ref)}) with a common prefix"
-    return "same tree: the final pick's (visits, value) tie broken by rounding"
+        return f"tree edge logs of different lengths ({len(log_new)} / {len(log_ref)}) with a common prefix"
+    return ("the same tree edges: the rollouts' returns differ (a draw, or rounding) or the final pick's (visits, "
+            "value) tie is broken by rounding")
 
 
 def bench_agreement(args) -> None:

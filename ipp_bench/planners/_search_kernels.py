@@ -4,9 +4,10 @@
   and :func:`fold_repeated_rows` folds a footprint looked at twice into one row; :func:`roi_product` is
   the decision's B = P D P;
 - MCTS (:mod:`ipp_bench.planners.mcts`, ``search = "lowrank"``): :func:`node_legs` lays out a node's legs
-  (once per node and episode), :func:`state_terms` scores every leg out of one tree state from the
-  state's low-rank factor, :func:`child_terms` does the same from the terms of the state's parent, and
-  :func:`edge_terms` adds one edge to the factor;
+  (:class:`NodeTable` holds every node's, once per roadmap), :func:`state_terms` scores every leg out of
+  one tree state from the state's low-rank factor, :func:`child_terms` does the same from the terms of the
+  state's parent (:func:`step_terms`: from the table), :func:`edge_terms` adds one edge to the factor,
+  and :func:`rollout` runs a rollout of the search;
 - CMA-ES (:mod:`ipp_bench.planners.cmaes`, ``evaluation = "batched"``): :func:`readout_blocks` gives the
   S and G of a candidate path's predicted gain ``Tr(S^-1 G)``.
 
@@ -45,44 +46,41 @@ def _jit(fn):
 
 
 @_jit
-def _cholesky_inverse(S, m, Linv):
-    """``Linv[:m, :m]`` = L^-1 with L L^T = S[:m, :m] (lower triangular; S symmetric positive definite)."""
-    L = np.zeros((m, m))
-    for j in range(m):
-        d = S[j, j]
-        for k in range(j):
-            d -= L[j, k] * L[j, k]
+def _cholesky_inverse(S, m, Linv, j, L):
+    """``Linv[j, :m, :m]`` = L^-1 with L L^T = S[:m, :m] (lower triangular; S symmetric positive definite;
+    ``Linv[j]`` zero on entry; ``L``: room for the factor)."""
+    for c in range(m):
+        d = S[c, c]
+        for k in range(c):
+            d -= L[c, k] * L[c, k]
         if not d > 0.0:
             raise ValueError("S = H P H^T + R is not positive definite")
         d = np.sqrt(d)
-        L[j, j] = d
-        for i in range(j + 1, m):
-            s = S[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / d
-    for i in range(m):
-        for j in range(m):
-            Linv[i, j] = 0.0
-    for j in range(m):  # column j of L^-1: forward substitution of e_j
-        Linv[j, j] = 1.0 / L[j, j]
-        for i in range(j + 1, m):
+        L[c, c] = d
+        for i in range(c + 1, m):
+            s = S[i, c]
+            for k in range(c):
+                s -= L[i, k] * L[c, k]
+            L[i, c] = s / d
+    for c in range(m):  # column c of L^-1: forward substitution of e_c
+        Linv[j, c, c] = 1.0 / L[c, c]
+        for i in range(c + 1, m):
             s = 0.0
-            for k in range(j, i):
-                s -= L[i, k] * Linv[k, j]
-            Linv[i, j] = s / L[i, i]
+            for k in range(c, i):
+                s -= L[i, k] * Linv[j, k, c]
+            Linv[j, i, c] = s / L[i, i]
 
 
 @_jit
-def _trace_inv_product(Linv, G, m):
-    """Tr(S^-1 G) = sum_ij (L^-T L^-1)_ij G_ij for symmetric G."""
+def _trace_inv_product(Linv, j, G, m):
+    """Tr(S^-1 G) = sum_ik (L^-T L^-1)_ik G_ik for symmetric G (L^-1: ``Linv[j]``)."""
     total = 0.0
     for i in range(m):
-        for j in range(i + 1):
+        for c in range(i + 1):
             s = 0.0
-            for k in range(i, m):  # (L^-T L^-1)_ij = sum_k Linv[k, i] Linv[k, j], k >= max(i, j)
-                s += Linv[k, i] * Linv[k, j]
-            total += s * G[i, j] if i == j else 2.0 * s * G[i, j]
+            for k in range(i, m):  # (L^-T L^-1)_ic = sum_k Linv[k, i] Linv[k, c], k >= max(i, c)
+                s += Linv[j, k, i] * Linv[j, k, c]
+            total += s * G[i, c] if i == c else 2.0 * s * G[i, c]
     return total
 
 
@@ -96,10 +94,9 @@ def node_legs(leg_rows, row_ptr, cells, weights, var):
 
     Returns:
         index (b,) the legs that see something; union (q,) their cells, ascending; m (b,) their rows;
-        var (b, M); pair_ptr, pair_cell, pair_w: for leg j and rows (a, c), c <= a (entry ``j M (M + 1) / 2
-        + a (a + 1) / 2 + c``), the products ``w_a[x] w_c[y]`` of their weights with the flat index ``x q +
-        y`` of the cells (x, y: their indices in ``union``); nz_ptr, nz_row, nz_cell, nz_w: leg j's weights
-        (row, index in ``union``, value) between ``nz_ptr[j]`` and ``nz_ptr[j + 1]``.
+        var (b, M); nz_ptr, nz_row, nz_cell, nz_w: leg j's weights (row, index in ``union``, value) between
+        ``nz_ptr[j]`` and ``nz_ptr[j + 1]``, row by row; rptr (b, M + 1): where each of leg j's rows starts
+        among them (row a: ``rptr[j, a]`` to ``rptr[j, a + 1]``; padding rows are empty).
     """
     k = leg_rows.size - 1
     b = 0
@@ -119,24 +116,10 @@ def node_legs(leg_rows, row_ptr, cells, weights, var):
             m[j] = rows
             j += 1
     union = np.unique(cells)
-    q = union.size
     local = np.empty(cells.size, dtype=np.int64)
     for p in range(cells.size):
         local[p] = np.searchsorted(union, cells[p])
     var_pad = np.ones((b, M))
-    tri = M * (M + 1) // 2
-    pair_ptr = np.zeros(b * tri + 1, dtype=np.int64)
-    for j in range(b):
-        r0 = leg_rows[index[j]]
-        for a in range(M):
-            for c in range(a + 1):
-                e = j * tri + a * (a + 1) // 2 + c
-                count = 0
-                if a < m[j]:
-                    count = (row_ptr[r0 + a + 1] - row_ptr[r0 + a]) * (row_ptr[r0 + c + 1] - row_ptr[r0 + c])
-                pair_ptr[e + 1] = pair_ptr[e] + count
-    pair_cell = np.empty(pair_ptr[b * tri], dtype=np.int64)
-    pair_w = np.empty(pair_ptr[b * tri])
     nz_ptr = np.zeros(b + 1, dtype=np.int64)
     for j in range(b):
         r0 = leg_rows[index[j]]
@@ -144,45 +127,21 @@ def node_legs(leg_rows, row_ptr, cells, weights, var):
     nz_row = np.empty(nz_ptr[b], dtype=np.int64)
     nz_cell = np.empty(nz_ptr[b], dtype=np.int64)
     nz_w = np.empty(nz_ptr[b])
+    rptr = np.empty((b, M + 1), dtype=np.int64)
     for j in range(b):
         r0 = leg_rows[index[j]]
         t = nz_ptr[j]
+        for a in range(M + 1):
+            rptr[j, a] = nz_ptr[j + 1]
         for a in range(m[j]):
             var_pad[j, a] = var[r0 + a]
+            rptr[j, a] = t
             for p in range(row_ptr[r0 + a], row_ptr[r0 + a + 1]):
                 nz_row[t] = a
                 nz_cell[t] = local[p]
                 nz_w[t] = weights[p]
                 t += 1
-            for c in range(a + 1):
-                e = pair_ptr[j * tri + a * (a + 1) // 2 + c]
-                for p in range(row_ptr[r0 + a], row_ptr[r0 + a + 1]):
-                    for u in range(row_ptr[r0 + c], row_ptr[r0 + c + 1]):
-                        pair_cell[e] = local[p] * q + local[u]
-                        pair_w[e] = weights[p] * weights[u]
-                        e += 1
-    return index, union, m, var_pad, pair_ptr, pair_cell, pair_w, nz_ptr, nz_row, nz_cell, nz_w
-
-
-@_jit
-def _leg_blocks(Pf, Bf, j, M, m, pair_ptr, pair_cell, pair_w, var, S, G):
-    """S = W P W^T + R and G = W B W^T of leg ``j``: entry (a, c), c <= a, sums ``pair_w * P[pair_cell]`` over
-    the products of row a's and row c's weights (``Pf``, ``Bf``: P_cc and B_cc flattened)."""
-    base = j * M * (M + 1) // 2
-    for a in range(m):
-        for c in range(a + 1):
-            e = base + a * (a + 1) // 2 + c
-            s = 0.0
-            g = 0.0
-            for p in range(pair_ptr[e], pair_ptr[e + 1]):
-                w = pair_w[p]
-                s += w * Pf[pair_cell[p]]
-                g += w * Bf[pair_cell[p]]
-            S[a, c] = s
-            S[c, a] = s
-            G[a, c] = g
-            G[c, a] = g
-        S[a, a] += var[j, a]
+    return index, union, m, var_pad, nz_ptr, nz_row, nz_cell, nz_w, rptr
 
 
 @_jit
@@ -194,12 +153,11 @@ def _edge_rows(P, B, header, idata, fdata, e, cells, UV):
     E = np.zeros((m, 2 * q))  # [(H P0)[:, c] | (H B0)[:, c]]
     for p in range(nnz):
         a = idata[io + p]
-        rowP = P[idata[io + nnz + p]]
-        rowB = B[idata[io + nnz + p]]
+        x = idata[io + nnz + p]
         w = fdata[fo + p]
         for i in range(q):
-            E[a, i] += w * rowP[cells[i]]
-            E[a, q + i] += w * rowB[cells[i]]
+            E[a, i] += w * P[x, cells[i]]
+            E[a, q + i] += w * B[x, cells[i]]
     Linv = fdata[fo + nnz:fo + nnz + m * m].reshape((m, m))
     if re > 0:
         Y = fdata[fo + nnz + m * m:fo + nnz + m * m + m * re].reshape((m, re))
@@ -209,7 +167,7 @@ def _edge_rows(P, B, header, idata, fdata, e, cells, UV):
 
 @_jit
 def _factor_rows(P, B, header, idata, fdata, r, cells):
-    """Ut, Vt (r, q): the rows of U^T and V^T = (P0 D U)^T on the q cells ``cells``, rebuilt edge by edge.
+    """UV = [Ut | Vt] (r, 2 q): the rows of U^T and V^T = (P0 D U)^T on the q cells ``cells``, rebuilt edge by edge.
 
     Edge e (``header[e]`` = m, r_e (the rows before it), nnz, offset in ``fdata``, offset in ``idata``) is a
     leg of m read-out rows: its weights (row ``idata[io:io + nnz]``, map cell ``idata[io + nnz:io + 2 nnz]``,
@@ -221,46 +179,62 @@ def _factor_rows(P, B, header, idata, fdata, r, cells):
     UV = np.empty((r, 2 * q))  # [Ut | Vt]
     for e in range(header.shape[0]):
         _edge_rows(P, B, header, idata, fdata, e, cells, UV)
-    Ut = np.ascontiguousarray(UV[:, :q])
-    Vt = np.ascontiguousarray(UV[:, q:])
-    return Ut, Vt
+    return UV
 
 
 @_jit
-def _legs_gains(Pcc, Bcc, leg_m, pair_ptr, pair_cell, pair_w, var, M):
-    """Each leg's gain Tr(S^-1 G) and its S, G (b, M, M) from P and P D P on the node's cells."""
+def _legs_gains(Pcc, Bcc, leg_m, rptr, nz_cell, nz_w, var, M):
+    """Each leg's gain ``Tr(S^-1 G)`` from P and P D P on the node's cells (S = W P W^T + R, G = W P D P W^T;
+    entry (a, c) sums ``w_a[x] w_c[y] P[x, y]`` over the two rows' weights), with its L^-1 (L L^T = S) and G,
+    each (b, M, M) (zero past the leg's rows)."""
     b = leg_m.size
-    Pf = Pcc.ravel()
-    Bf = Bcc.ravel()
-    gains = np.empty(b)
-    S = np.zeros((b, M, M))
+    Li = np.zeros((b, M, M))
     G = np.zeros((b, M, M))
-    Linv = np.empty((M, M))
+    S = np.zeros((M, M))
+    L = np.zeros((M, M))
+    gains = np.empty(b)
     for j in range(b):
         m = leg_m[j]
-        _leg_blocks(Pf, Bf, j, M, m, pair_ptr, pair_cell, pair_w, var, S[j], G[j])
-        _cholesky_inverse(S[j], m, Linv)
-        gains[j] = _trace_inv_product(Linv, G[j], m)
-    return gains, S, G
+        Gj = G[j]
+        for a in range(m):
+            for c in range(a + 1):
+                s = 0.0
+                g = 0.0
+                for p in range(rptr[j, a], rptr[j, a + 1]):
+                    x = nz_cell[p]
+                    wp = nz_w[p]
+                    for u in range(rptr[j, c], rptr[j, c + 1]):
+                        w = wp * nz_w[u]
+                        s += w * Pcc[x, nz_cell[u]]
+                        g += w * Bcc[x, nz_cell[u]]
+                S[a, c] = s
+                S[c, a] = s
+                Gj[a, c] = g
+                Gj[c, a] = g
+            S[a, a] += var[j, a]
+        _cholesky_inverse(S, m, Li, j, L)
+        gains[j] = _trace_inv_product(Li, j, Gj, m)
+    return gains, Li, G
 
 
 @_jit
-def state_terms(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_cell, pair_w, var, M):
+def state_terms(P, B, header, idata, fdata, r, cells, K, leg_m, rptr, nz_cell, nz_w, var, M):
     """The one-step gains of every leg out of a tree state, and the terms its edges reuse.
 
     The state's covariance is P0 - U U^T (U: the blocks of the edges from the root, ``header``, ``idata``,
     ``fdata`` as :func:`_factor_rows` reads them; r columns) and K = U^T D U; ``P`` = P0 and ``B`` = B0 =
     P0 D P0, both (n, n). On the node's q cells ``cells``, with Uc, Vc the rows of U and V = P0 D U there:
     ``P_cc = P0_cc - Uc Uc^T`` and ``B_cc = (P D P)_cc = B0_cc - Vc Uc^T - Uc Vc^T + Uc K Uc^T``. Each leg j
-    (rows W_j over those cells, as the weight products ``pair_*`` of each pair of its rows; noise ``var[j]``) has ``S =
-    W P_cc W^T + R``, ``G = W B_cc W^T`` and gain ``Tr(S^-1 G)``: the reduction of Tr(P) over the ROI D.
+    (rows W_j over those cells: row a's weights ``nz_w`` on the cells ``nz_cell`` between ``rptr[j, a]`` and
+    ``rptr[j, a + 1]``; noise ``var[j]``) has ``S = W P_cc W^T + R``, ``G = W B_cc W^T`` and gain
+    ``Tr(S^-1 G)``: the reduction of Tr(P) over the ROI D.
 
     Returns:
-        gains (b,); S and G, each (b, M, M) (zero past each leg's ``leg_m`` rows); Uc^T and Vc^T, each (r, q);
-        P_cc and B_cc (q, q) (what :func:`child_terms` starts from).
+        gains (b,); L^-1 (L L^T = S) and G, each (b, M, M) (zero past each leg's ``leg_m`` rows); UV = [Uc^T |
+        Vc^T] (r, 2 q); P_cc and B_cc (q, q) (what :func:`child_terms` starts from).
     """
     q = cells.size
-    Ut, Vt = _factor_rows(P, B, header, idata, fdata, r, cells)
+    UV = _factor_rows(P, B, header, idata, fdata, r, cells)
     Pcc = np.empty((q, q))
     Bcc = np.empty((q, q))
     for i in range(q):
@@ -268,7 +242,8 @@ def state_terms(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_c
             Pcc[i, k] = P[cells[i], cells[k]]
             Bcc[i, k] = B[cells[i], cells[k]]
     if r > 0:
-        Tt = 0.5 * np.dot(K, Ut) - Vt  # ((1/2) Uc K - Vc)^T: Uc T + T^T Uc^T = Uc K Uc^T - Uc Vc^T - Vc Uc^T
+        Ut = np.ascontiguousarray(UV[:, :q])
+        Tt = 0.5 * np.dot(K, Ut) - UV[:, q:]  # ((1/2) Uc K - Vc)^T: Uc T + T^T Uc^T = Uc K Uc^T - Uc Vc^T - Vc Uc^T
         both = np.empty((r, 2 * q))
         both[:, :q] = Ut
         both[:, q:] = Tt
@@ -277,51 +252,42 @@ def state_terms(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_c
             for k in range(q):
                 Pcc[i, k] -= prod[i, k]
                 Bcc[i, k] += prod[i, q + k] + prod[k, q + i]
-    gains, S, G = _legs_gains(Pcc, Bcc, leg_m, pair_ptr, pair_cell, pair_w, var, M)
-    return gains, S, G, Ut, Vt, Pcc, Bcc
+    gains, Li, G = _legs_gains(Pcc, Bcc, leg_m, rptr, nz_cell, nz_w, var, M)
+    return gains, Li, G, UV, Pcc, Bcc
 
 
 @_jit
-def child_terms(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_cell, pair_w, var, M, pcells, pUt,
-                pVt, pPcc, pBcc, eS, eG, em, erows, ecells, ew, eints):
+def child_terms(P, B, header, idata, fdata, r, cells, K, leg_m, rptr, nz_cell, nz_w, var, M, pcells, pUV, pPcc,
+                pBcc, eLi, eG, ej, em, erows, ecells, ew, eints):
     """:func:`state_terms` of a state from its parent's terms, with the edge that leads to it.
 
     ``header``, ``idata``, ``fdata``, ``r`` and ``K`` are the parent's factor, ``pcells`` the parent node's
-    cells (ascending), ``pUt``, ``pVt`` (r_p, q_p) the rows of U^T and V^T there and ``pPcc``, ``pBcc`` P
-    and P D P there. The edge is the parent's leg of ``em`` rows (0: it sees nothing, the factor stays)
-    with the parent's ``eS``, ``eG`` of that leg and its weights (row ``erows``, index ``ecells`` among
-    ``pcells``, value ``ew``; ``eints`` = rows, then map cells): :func:`edge_terms` adds it to the factor.
+    cells (ascending), ``pUV`` = [Ut | Vt] (r_p, 2 q_p) the rows of U^T and V^T there and ``pPcc``, ``pBcc`` P
+    and P D P there. The edge is the parent's leg ``ej`` of ``em`` rows (0: it sees nothing, the factor
+    stays; ``eLi``, ``eG``: the parent's legs' L^-1 and G, as :func:`state_terms` gives them), with its
+    weights (row ``erows``, index ``ecells`` among ``pcells``, value ``ew``; ``eints`` = rows, then map
+    cells): :func:`edge_terms` adds it to the factor.
 
     Returns:
         what :func:`state_terms` returns, then the state's factor: header, idata, fdata, K.
     """
+    pK = K
+    X = np.zeros((r, 0))
+    corner = np.zeros((0, 0))
     if em > 0:
-        Linv, Y, K = edge_terms(eS, eG, em, erows, ecells, ew, pUt, pVt, K)
-        h = header.shape[0]
-        nnz = ew.size
-        head = np.empty((h + 1, 5), dtype=np.int64)
-        head[:h] = header
-        head[h, 0], head[h, 1], head[h, 2], head[h, 3], head[h, 4] = em, r, nnz, fdata.size, idata.size
-        header = head
-        idata = np.concatenate((idata, eints))
-        fo = fdata.size
-        fnew = np.empty(fo + nnz + em * em + em * r)
-        fnew[:fo] = fdata
-        fnew[fo:fo + nnz] = ew
-        fnew[fo + nnz:fo + nnz + em * em] = Linv.ravel()
-        fnew[fo + nnz + em * em:] = Y.ravel()
-        fdata = fnew
+        header, idata, fdata, K, X, corner = _append_edge(eLi, eG, ej, em, erows, ecells, ew, eints, pUV, header, idata,
+                                                          fdata, r, K)
         r = r + em
-    gains, S, G, Ut, Vt, Pcc, Bcc = _from_parent(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_cell,
-                                                 pair_w, var, M, pcells, pUt, pVt, pPcc, pBcc)
-    return gains, S, G, Ut, Vt, Pcc, Bcc, header, idata, fdata, K
+    gains, Li, G, UV, Pcc, Bcc = _from_parent(P, B, header, idata, fdata, r, cells, pK, X, corner, leg_m, rptr,
+                                             nz_cell, nz_w, var, M, pcells, pUV, pPcc, pBcc)
+    return gains, Li, G, UV, Pcc, Bcc, header, idata, fdata, K
 
 
 @_jit
-def _from_parent(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_cell, pair_w, var, M, pcells, pUt,
-                 pVt, pPcc, pBcc):
+def _from_parent(P, B, header, idata, fdata, r, cells, pK, X, corner, leg_m, rptr, nz_cell, nz_w, var, M, pcells,
+                 pUV, pPcc, pBcc):
     """:func:`state_terms` of a state (its factor: ``header`` to ``K``) from its parent's terms: ``pcells`` the
-    parent node's cells (ascending), ``pUt``, ``pVt`` (r_p, q_p) the rows of U^T and V^T there and ``pPcc``,
+    parent node's cells (ascending), ``pUV`` = [Ut | Vt] (r_p, 2 q_p) the rows of U^T and V^T there and ``pPcc``,
     ``pBcc`` P and P D P there.
 
     The rows of U, V, P and P D P on the cells both nodes' legs see are the parent's; those on the other
@@ -332,7 +298,7 @@ def _from_parent(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_
     """
     q = cells.size
     qp = pcells.size
-    rp = pUt.shape[0]
+    rp = pUV.shape[0]
     pos = np.empty(q, dtype=np.int64)  # each cell's index among the parent's (-1: not there)
     qn = 0
     for i in range(q):
@@ -350,32 +316,31 @@ def _from_parent(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_
             t += 1
     UV = np.empty((r, 2 * q))  # [Ut | Vt]
     if rp > 0:
-        Un = np.empty((rp, 0))
-        Vn = np.empty((rp, 0))
+        UVn = np.empty((rp, 0))
         if qn > 0:
             edges = header.shape[0] - (1 if r > rp else 0)
-            Un, Vn = _factor_rows(P, B, header[:edges], idata, fdata, rp, cells[fresh])
-        t = 0
-        for i in range(q):
-            if pos[i] >= 0:
-                for k in range(rp):
-                    UV[k, i] = pUt[k, pos[i]]
-                    UV[k, q + i] = pVt[k, pos[i]]
-            else:
-                for k in range(rp):
-                    UV[k, i] = Un[k, t]
-                    UV[k, q + i] = Vn[k, t]
-                t += 1
+            UVn = _factor_rows(P, B, header[:edges], idata, fdata, rp, cells[fresh])
+        for k in range(rp):
+            t = 0
+            for i in range(q):
+                if pos[i] >= 0:
+                    UV[k, i] = pUV[k, pos[i]]
+                    UV[k, q + i] = pUV[k, qp + pos[i]]
+                else:
+                    UV[k, i] = UVn[k, t]
+                    UV[k, q + i] = UVn[k, qn + t]
+                    t += 1
     Pcc = np.empty((q, q))
     Bcc = np.empty((q, q))
     for i in range(q):
         if pos[i] < 0:
             continue
+        t = pos[i]
         for k in range(q):
             if pos[k] >= 0:
-                Pcc[i, k] = pPcc[pos[i], pos[k]]
-                Bcc[i, k] = pBcc[pos[i], pos[k]]
-    if qn > 0:
+                Pcc[i, k] = pPcc[t, pos[k]]
+                Bcc[i, k] = pBcc[t, pos[k]]
+    if qn > 0:  # the rows of the cells the parent did not see, from the root: P0 - U U^T, B0 + (K U - V) U^T - U V^T
         rowsP = np.empty((qn, q))
         rowsB = np.empty((qn, q))
         for t in range(qn):
@@ -384,65 +349,327 @@ def _from_parent(P, B, header, idata, fdata, r, cells, K, leg_m, pair_ptr, pair_
                 rowsP[t, k] = P[c, cells[k]]
                 rowsB[t, k] = B[c, cells[k]]
         if rp > 0:
-            Ut = np.ascontiguousarray(UV[:rp, :q])
-            Vt = np.ascontiguousarray(UV[:rp, q:])
-            UnT = np.ascontiguousarray(Ut[:, fresh].T)  # (qn, rp)
-            # (K U_i - V_i)^T, K symmetric
-            WnT = np.dot(UnT, np.ascontiguousarray(K[:rp, :rp])) - np.ascontiguousarray(Vt[:, fresh].T)
-            rowsP -= np.dot(UnT, Ut)
-            rowsB += np.dot(WnT, Ut) - np.dot(UnT, Vt)
+            UnT = np.empty((qn, rp))  # (qn, rp)
+            VnT = np.empty((qn, rp))
+            for t in range(qn):
+                for k in range(rp):
+                    UnT[t, k] = UV[k, fresh[t]]
+                    VnT[t, k] = UV[k, q + fresh[t]]
+            WnT = np.dot(UnT, pK) - VnT  # (K U_i - V_i)^T, K symmetric
+            both = np.dot(np.concatenate((UnT, WnT)), UV[:rp])  # [Un Uc^T | Un Vc^T ; Wn Uc^T | Wn Vc^T]
+            for t in range(qn):
+                for k in range(q):
+                    rowsP[t, k] -= both[t, k]
+                    rowsB[t, k] += both[qn + t, k] - both[t, q + k]
         for t in range(qn):
             i = fresh[t]
             for k in range(q):
                 Pcc[i, k] = rowsP[t, k]
-                Pcc[k, i] = rowsP[t, k]
                 Bcc[i, k] = rowsB[t, k]
-                Bcc[k, i] = rowsB[t, k]
+        for k in range(q):
+            for t in range(qn):
+                Pcc[k, fresh[t]] = rowsP[t, k]
+                Bcc[k, fresh[t]] = rowsB[t, k]
     if r > rp:
         _edge_rows(P, B, header, idata, fdata, header.shape[0] - 1, cells, UV)
         A = np.ascontiguousarray(UV[rp:, :q])  # (m, q)
-        T = 0.5 * np.dot(np.ascontiguousarray(K[rp:, rp:]), A) - UV[rp:, q:]
+        T = 0.5 * np.dot(corner, A) - UV[rp:, q:]
         if rp > 0:
-            T += np.dot(np.ascontiguousarray(K[:rp, rp:]).T, np.ascontiguousarray(UV[:rp, :q]))
+            T += np.dot(X.T, np.ascontiguousarray(UV[:rp, :q]))
         AA = np.dot(A.T, A)
         AT = np.dot(A.T, T)
+        TA = np.ascontiguousarray(AT.T)
         for i in range(q):
-            for k in range(i + 1):
-                p = Pcc[i, k] - AA[i, k]
-                g = Bcc[i, k] + AT[i, k] + AT[k, i]
-                Pcc[i, k] = p
-                Pcc[k, i] = p
-                Bcc[i, k] = g
-                Bcc[k, i] = g
-    gains, S, G = _legs_gains(Pcc, Bcc, leg_m, pair_ptr, pair_cell, pair_w, var, M)
-    return gains, S, G, np.ascontiguousarray(UV[:, :q]), np.ascontiguousarray(UV[:, q:]), Pcc, Bcc
+            for k in range(q):
+                Pcc[i, k] -= AA[i, k]
+                Bcc[i, k] += AT[i, k] + TA[i, k]
+    gains, Li, G = _legs_gains(Pcc, Bcc, leg_m, rptr, nz_cell, nz_w, var, M)
+    return gains, Li, G, UV, Pcc, Bcc
 
 
 @_jit
-def edge_terms(S, G, m, Wrows, wcell, wval, Ut, Vt, K):
-    """The small terms of one edge, for a leg of m rows with the parent's terms: L^-1 (L L^T = S), Y = W Uc
-    and the new K = [[K, X], [X^T, L^-1 G L^-T]] with X = U^T D A = (Z^T - K Y^T) L^-T, Z = W Vc (the leg's
-    weight p in row ``Wrows[p]`` on the parent node's cell ``wcell[p]``; m rows)."""
-    r = Ut.shape[0]
-    Linv = np.empty((m, m))
-    _cholesky_inverse(S, m, Linv)
+def edge_terms(Li, G, j, m, Wrows, wcell, wval, UV, K):
+    """The small terms of one edge, for the parent's leg ``j`` of m rows with the parent's terms (``Li``, ``G``:
+    its legs' L^-1 and G, as :func:`state_terms` gives them; ``UV`` = [Uc^T | Vc^T]): L^-1 (L L^T = S),
+    Y = W Uc, the new K = [[K, X], [X^T, L^-1 G L^-T]] with X = U^T D A = (Z^T - K Y^T) L^-T, Z = W Vc (the
+    leg's weight p in row ``Wrows[p]`` on the parent node's cell ``wcell[p]``; m rows), X and the corner."""
+    r = UV.shape[0]
+    qp = UV.shape[1] // 2
+    Linv = np.ascontiguousarray(Li[j, :m, :m])
     Y = np.zeros((m, r))
     Z = np.zeros((m, r))
-    for p in range(wval.size):
-        a, c, w = Wrows[p], wcell[p], wval[p]
-        for k in range(r):
-            Y[a, k] += w * Ut[k, c]
-            Z[a, k] += w * Vt[k, c]
-    Gm = np.ascontiguousarray(G[:m, :m])
+    for k in range(r):
+        for p in range(wval.size):
+            a, c, w = Wrows[p], wcell[p], wval[p]
+            Y[a, k] += w * UV[k, c]
+            Z[a, k] += w * UV[k, qp + c]
+    Gm = np.ascontiguousarray(G[j, :m, :m])
     corner = np.dot(np.dot(Linv, Gm), Linv.T)
     Kn = np.empty((r + m, r + m))
     Kn[:r, :r] = K
+    X = np.zeros((r, m))
     if r > 0:
         X = np.dot(Z.T - np.dot(K, Y.T), Linv.T)
         Kn[:r, r:] = X
         Kn[r:, :r] = X.T
     Kn[r:, r:] = corner
-    return Linv, Y, Kn
+    return Linv, Y, Kn, X, corner
+
+
+# -- the node table: each roadmap node's legs (node_legs), laid out once, in two flat pools --------------
+#: the columns of a node's row of the table: built (1: laid out), b, M, q, then where each of its arrays
+#: starts in the int pool (row (k), index (b), cells (q), m (b), rptr (b (M + 1)), nz_ptr (b + 1), nz_row,
+#: nz_cell, and per leg its rows then its map cells (2 nnz)) and in the float pool (var (b M), nz_w)
+(T_BUILT, T_B, T_M, T_Q, T_ROW, T_INDEX, T_CELLS, T_LEGM, T_RPTR, T_NZ_PTR, T_NZ_ROW, T_NZ_CELL, T_NZ_INTS, T_VAR,
+ T_NZ_W) = range(15)
+TABLE_WIDTH = 15
+
+
+@_jit
+def node_view(ipool, fpool, table, node, k):
+    """The legs of roadmap node ``node`` (k legs) from the table, as views of the pools: b, M, row, index,
+    cells, m, rptr (b, M + 1), var (b, M), nz_ptr, nz_row, nz_cell, nz_ints, nz_w (:func:`node_legs`)."""
+    t = table[node]
+    b, M, q = t[T_B], t[T_M], t[T_Q]
+    row = ipool[t[T_ROW]:t[T_ROW] + k]
+    index = ipool[t[T_INDEX]:t[T_INDEX] + b]
+    cells = ipool[t[T_CELLS]:t[T_CELLS] + q]
+    m = ipool[t[T_LEGM]:t[T_LEGM] + b]
+    rptr = ipool[t[T_RPTR]:t[T_RPTR] + b * (M + 1)].reshape((b, M + 1))
+    nz_ptr = ipool[t[T_NZ_PTR]:t[T_NZ_PTR] + b + 1]
+    nnz = nz_ptr[b]
+    nz_row = ipool[t[T_NZ_ROW]:t[T_NZ_ROW] + nnz]
+    nz_cell = ipool[t[T_NZ_CELL]:t[T_NZ_CELL] + nnz]
+    nz_ints = ipool[t[T_NZ_INTS]:t[T_NZ_INTS] + 2 * nnz]
+    var = fpool[t[T_VAR]:t[T_VAR] + b * M].reshape((b, M))
+    nz_w = fpool[t[T_NZ_W]:t[T_NZ_W] + nnz]
+    return b, M, row, index, cells, m, rptr, var, nz_ptr, nz_row, nz_cell, nz_ints, nz_w
+
+
+@_jit
+def step_terms(P, B, ipool, fpool, table, k, pnode, action, node, header, idata, fdata, r, K, UV, Pcc, Bcc, Li, G):
+    """The terms of the state reached by leg ``action`` from a scored state at node ``pnode`` (its factor
+    ``header`` to ``K`` and its terms ``UV`` to ``G``, as :func:`state_terms` gives them; empty where its node's
+    legs see nothing), at node ``node``: from the parent's terms (:func:`child_terms`) where both nodes' legs
+    see something, else from the root (:func:`state_terms`; a leg that sees nothing keeps the factor).
+
+    Returns:
+        gains (k,) (0 for the legs that see nothing), then Li, G, UV, Pcc, Bcc, header, idata, fdata, r, K
+        (Li to Bcc empty where the node's legs see nothing).
+    """
+    pb, _, prow, _, pcells, plegm, _, _, pnz_ptr, pnz_row, pnz_cell, pnz_ints, pnz_w = node_view(ipool, fpool, table,
+                                                                                              pnode, k)
+    b, M, _, index, cells, legm, rptr, var, _, _, nz_cell, _, nz_w = node_view(ipool, fpool, table, node, k)
+    j = prow[action]
+    em = 0
+    erows, ecells, ew, eints = pnz_row[:0], pnz_cell[:0], pnz_w[:0], pnz_ints[:0]
+    if j >= 0:
+        em = plegm[j]
+        p0, p1 = pnz_ptr[j], pnz_ptr[j + 1]
+        erows, ecells, ew, eints = pnz_row[p0:p1], pnz_cell[p0:p1], pnz_w[p0:p1], pnz_ints[2 * p0:2 * p1]
+    out = np.zeros(k)
+    if pb > 0 and b > 0:
+        if em > 0:
+            (g, Li2, G2, UV2, Pcc2, Bcc2, header2, idata2, fdata2,
+             K2) = child_terms(P, B, header, idata, fdata, r, cells, K, legm, rptr, nz_cell, nz_w, var, M,
+                               pcells, UV, Pcc, Bcc, Li, G, j, em, erows, ecells, ew, eints)
+        else:
+            (g, Li2, G2, UV2, Pcc2, Bcc2, header2, idata2, fdata2,
+             K2) = child_terms(P, B, header, idata, fdata, r, cells, K, legm, rptr, nz_cell, nz_w, var, M,
+                               pcells, UV, Pcc, Bcc, Li, G, 0, 0, erows, ecells, ew, eints)
+        for i in range(b):
+            out[index[i]] = g[i]
+        return out, Li2, G2, UV2, Pcc2, Bcc2, header2, idata2, fdata2, r + em, K2
+    # a node whose legs see nothing: the factor from the parent's (with the edge), the terms from the root
+    if em > 0:
+        header, idata, fdata, K, _, _ = _append_edge(Li, G, j, em, erows, ecells, ew, eints, UV, header, idata, fdata,
+                                                      r, K)
+    r2 = r + em
+    if b == 0:
+        Li2 = np.zeros((0, M, M))
+        E2 = np.zeros((0, 0))
+        return out, Li2, Li2.copy(), E2, E2.copy(), E2.copy(), header, idata, fdata, r2, K
+    g, Li2, G2, UV2, Pcc2, Bcc2 = state_terms(P, B, header, idata, fdata, r2, cells, K, legm, rptr, nz_cell,
+                                                  nz_w, var, M)
+    for i in range(b):
+        out[index[i]] = g[i]
+    return out, Li2, G2, UV2, Pcc2, Bcc2, header, idata, fdata, r2, K
+
+
+@_jit
+def _append_edge(eLi, eG, ej, em, erows, ecells, ew, eints, UV, header, idata, fdata, r, K):
+    """The factor with one edge appended (:func:`edge_terms`): header, idata, fdata, K."""
+    Linv, Y, K, X, corner = edge_terms(eLi, eG, ej, em, erows, ecells, ew, UV, K)
+    h = header.shape[0]
+    nnz = ew.size
+    head = np.empty((h + 1, 5), dtype=np.int64)
+    head[:h] = header
+    head[h, 0], head[h, 1], head[h, 2], head[h, 3], head[h, 4] = em, r, nnz, fdata.size, idata.size
+    idata = np.concatenate((idata, eints))
+    fo = fdata.size
+    fnew = np.empty(fo + nnz + em * em + em * r)
+    fnew[:fo] = fdata
+    fnew[fo:fo + nnz] = ew
+    fnew[fo + nnz:fo + nnz + em * em] = Linv.ravel()
+    fnew[fo + nnz + em * em:] = Y.ravel()
+    return head, idata, fnew, K, X, corner
+
+
+@_jit
+def _pairwise_sum(a, lo, n):
+    """NumPy's pairwise summation of ``a[lo:lo + n]`` (what ``a.sum()`` adds, in its order)."""
+    if n < 8:
+        res = -0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    if n <= 128:
+        r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+        r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+        i = 8
+        while i < n - n % 8:
+            r0 += a[lo + i]
+            r1 += a[lo + i + 1]
+            r2 += a[lo + i + 2]
+            r3 += a[lo + i + 3]
+            r4 += a[lo + i + 4]
+            r5 += a[lo + i + 5]
+            r6 += a[lo + i + 6]
+            r7 += a[lo + i + 7]
+            i += 8
+        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        while i < n:
+            res += a[lo + i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_sum(a, lo, n2) + _pairwise_sum(a, lo + n2, n - n2)
+
+
+@_jit
+def _order(gains, costs, remaining, tol):
+    """The playable legs (``costs <= remaining + tol``), best ``gains / costs`` first, ties by index."""
+    k = gains.size
+    count = 0
+    for i in range(k):
+        if costs[i] <= remaining + tol:
+            count += 1
+    order = np.empty(count, dtype=np.int64)
+    key = np.empty(count)
+    t = 0
+    for i in range(k):
+        if costs[i] <= remaining + tol:
+            order[t] = i
+            key[t] = -(gains[i] / costs[i])
+            t += 1
+    for i in range(1, count):  # insertion sort: stable, as np.lexsort((actions, -rate))
+        a, v = order[i], key[i]
+        t = i - 1
+        while t >= 0 and key[t] > v:
+            order[t + 1] = order[t]
+            key[t + 1] = key[t]
+            t -= 1
+        order[t + 1] = a
+        key[t + 1] = v
+    return order
+
+
+@_jit
+def _draw(rng, gains, costs, order, lam):
+    """The rollout's move from a state (``order`` its playable legs): -1 where none gains anything, else the
+    draw of ``rng.choice(order, p=softmax(lam * rate / max rate))``, rate = gains / costs: one ``rng.random()``
+    against the same cumulative sum (NumPy's sums, in their order; ``exp`` as the C library computes it)."""
+    n = order.size
+    rate = np.empty(n)
+    top = -np.inf
+    for i in range(n):
+        rate[i] = gains[order[i]] / costs[order[i]]
+        top = max(top, rate[i])
+    if not top > 0:
+        return -1
+    logits = np.empty(n)
+    high = -np.inf
+    for i in range(n):
+        logits[i] = lam * rate[i] / top
+        high = max(high, logits[i])
+    p = np.empty(n)
+    for i in range(n):
+        p[i] = math.exp(logits[i] - high)
+    total = _pairwise_sum(p, 0, n)
+    cdf = np.empty(n)
+    acc = 0.0
+    for i in range(n):
+        acc += p[i] / total
+        cdf[i] = acc
+    last = cdf[n - 1]
+    for i in range(n):
+        cdf[i] /= last
+    u = rng.random()
+    return order[np.searchsorted(cdf, u, side="right")]
+
+
+@_jit
+def rollout(P, B, ipool, fpool, table, neighbours, costs, known, rng, horizon, tol, gamma, period, lam, unit, mode,
+            node, remaining, elapsed, gains, action, total, discount, header, idata, fdata, r, K, UV, Pcc, Bcc,
+            Li, G):
+    """A rollout of the MCTS (:mod:`ipp_bench.planners.mcts`) from a scored state, compiled: the moves drawn
+    with ``rng`` as the search draws them, the same rewards and discounts.
+
+    ``mode`` 0: the rollout starts at the tree's new state, at node ``neighbours[node, action]``, reached from the
+    scored state (``node``, its ``gains`` and terms) with ``remaining`` and ``elapsed`` its own (the caller
+    made the move); 1: it goes on from the scored state (``node``, ``remaining``, ``elapsed``, ``gains``) with
+    the move ``action`` drawn, ``total`` and ``discount`` so far. A state's flight times are row ``node`` of
+    ``costs`` (``known``: which rows are set); its legs, the table's (laid out where the state is scored).
+
+    Returns:
+        status (0: the rollout ended, with return ``total``; 1: it needs node ``need``'s flight times or legs
+        (the caller sets them and goes on with mode 1 from the state returned)), need, total, discount; the
+        first state's gains (k,) (in units of ``unit``), order and terms (mode 0: the tree's new state; Li to
+        r as :func:`step_terms` gives them); the state to go on from (node, remaining, elapsed, gains, the move
+        drawn and its terms).
+    """
+    k = neighbours.shape[1]
+    f_gains, f_order = gains, np.zeros(0, dtype=np.int64)
+    f_terms = (Li, G, UV, Pcc, Bcc, header, idata, fdata, r, K)
+    first = mode == 0
+    pending = mode == 1
+    a = action
+    c_node, c_rem, c_el = node, remaining, elapsed
+    if mode == 0:
+        c_node = neighbours[node, action]
+    while True:
+        if pending:  # the move from the scored state (node, ...): its reward, and where it leads
+            c_node = neighbours[node, a]
+            cost = costs[node, a]
+            c_el = elapsed + cost
+            c_rem = remaining - cost
+            if not known[c_node] or (c_el < horizon - tol and table[c_node, T_BUILT] == 0):
+                return (1, c_node, total, discount, f_gains, f_order, f_terms, node, remaining, elapsed, gains, a,
+                        (Li, G, UV, Pcc, Bcc, header, idata, fdata, r, K))
+            share = min(1.0, (horizon - elapsed) / cost)
+            d = gamma ** (cost / period)
+            total += discount * (share * gains[a])
+            discount *= d
+        if c_el >= horizon - tol:
+            break
+        out = step_terms(P, B, ipool, fpool, table, k, node, a, c_node, header, idata, fdata, r, K, UV, Pcc, Bcc,
+                         Li, G)
+        gains = out[0] / unit
+        Li, G, UV, Pcc, Bcc, header, idata, fdata, r, K = out[1:]
+        node, remaining, elapsed = c_node, c_rem, c_el
+        order = _order(gains, costs[node], remaining, tol)
+        if first:
+            f_gains, f_order, f_terms = gains, order, (Li, G, UV, Pcc, Bcc, header, idata, fdata, r, K)
+            first = False
+        if order.size == 0:
+            break
+        a = _draw(rng, gains, costs[node], order, lam)
+        if a < 0:
+            break
+        pending = True
+    return (0, -1, total, discount, f_gains, f_order, f_terms, node, remaining, elapsed, gains, a,
+            (Li, G, UV, Pcc, Bcc, header, idata, fdata, r, K))
 
 
 @_jit
@@ -667,6 +894,74 @@ def fold_repeated_rows(row_ptr, cells, weights, var):
     return out_ptr, out_cells, out_w, out_var
 
 
+class NodeTable:
+    """Every roadmap node's legs laid out for the compiled search, a node when the search first reaches it, in
+    two flat pools (the layout of :func:`node_legs`; the table's columns: ``T_*``), which the compiled search
+    reads (:func:`node_view`)."""
+
+    def __init__(self, nodes: int, k: int):
+        self.k = k
+        self.table = np.zeros((nodes, TABLE_WIDTH), dtype=np.int64)
+        self.ipool = np.zeros(1 << 16, dtype=np.int64)
+        self.fpool = np.zeros(1 << 16)
+        self._ni = self._nf = 0
+
+    def built(self, node: int) -> bool:
+        return bool(self.table[node, T_BUILT])
+
+    def add(self, node: int, legs: list) -> None:
+        """Lay out node ``node``'s legs (``legs[a]``: the sparse rows of leg a, None where it sees nothing)."""
+        rows = [(0, 0) if leg is None else (leg[0].size - 1, leg[1].size) for leg in legs]
+        leg_rows = np.concatenate([[0], np.cumsum([r for r, _ in rows])]).astype(np.int64)
+        present = [leg for leg in legs if leg is not None]
+        if present:
+            offsets = np.cumsum([0] + [nnz for _, nnz in rows if nnz])[:-1]
+            row_ptr = np.concatenate([[0]] + [leg[0][1:] + o for leg, o in zip(present, offsets)]).astype(np.int64)
+            cells, weights, var = (np.concatenate([leg[i] for leg in present]) for i in (1, 2, 3))
+        else:
+            row_ptr, cells, weights, var = np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), \
+                np.zeros(0)
+        index, union, m, var_pad, nz_ptr, nz_row, nz_cell, nz_w, rptr = node_legs(leg_rows, row_ptr,
+                                                                                   cells.astype(np.int64), weights, var)
+        row = np.full(self.k, -1, dtype=np.int64)
+        row[index] = np.arange(index.size)
+        nz_ints = np.concatenate([np.zeros(0, dtype=np.int64)] + [
+            np.concatenate([nz_row[nz_ptr[j]:nz_ptr[j + 1]], union[nz_cell[nz_ptr[j]:nz_ptr[j + 1]]]])
+            for j in range(index.size)])
+        ints = (row, index, union, m, rptr.ravel(), nz_ptr, nz_row, nz_cell, nz_ints)
+        floats = (var_pad.ravel(), nz_w)
+        i0 = self._ni
+        f0 = self._nf
+        self.ipool = self._grown(self.ipool, i0, sum(a.size for a in ints))
+        self.fpool = self._grown(self.fpool, f0, sum(a.size for a in floats))
+        entry = self.table[node]
+        entry[T_B], entry[T_M], entry[T_Q] = index.size, var_pad.shape[1], union.size
+        for col, a in zip((T_ROW, T_INDEX, T_CELLS, T_LEGM, T_RPTR, T_NZ_PTR, T_NZ_ROW, T_NZ_CELL, T_NZ_INTS), ints):
+            self.ipool[i0:i0 + a.size] = a
+            entry[col] = i0
+            i0 += a.size
+        for col, a in zip((T_VAR, T_NZ_W), floats):
+            self.fpool[f0:f0 + a.size] = a
+            entry[col] = f0
+            f0 += a.size
+        self._ni, self._nf = i0, f0
+        entry[T_BUILT] = 1
+
+    def compact(self) -> None:
+        """Drop the pools' room past what they hold."""
+        self.ipool = self.ipool[:self._ni].copy()
+        self.fpool = self.fpool[:self._nf].copy()
+
+    @staticmethod
+    def _grown(pool: np.ndarray, used: int, more: int) -> np.ndarray:
+        """``pool`` with room for ``more`` entries after its first ``used`` (its size doubled where it lacks it)."""
+        if used + more <= pool.size:
+            return pool
+        bigger = np.zeros(max(2 * pool.size, used + more), dtype=pool.dtype)
+        bigger[:used] = pool[:used]
+        return bigger
+
+
 def warm_up() -> None:
     """Compile every kernel now (10-30 s, once per process; nothing after it compiles), not in a decision."""
     require_numba("the fast searches")
@@ -674,25 +969,23 @@ def warm_up() -> None:
     readout_blocks(P, P, np.array([0, 1, 2], dtype=np.int64), np.array([0, 1], dtype=np.int64), np.ones(2), np.ones(2))
     fold_repeated_rows(np.array([0, 1, 2], dtype=np.int64), np.array([0, 0], dtype=np.int64), np.ones(2), np.ones(2))
     camera_rows(np.array([[1.0, 1.0, 2.0], [1.0, 1.0, 9.0]]), 0.05, 0.2, 8.0, 0.5, 1.0, 4, 4, 5.0, 2, 0.1, 0.1, 0.5)
+    # the MCTS search: a two-node roadmap, each node's one leg seeing two cells (state_terms as the root's, step_terms
+    # and rollout as the search's)
     P = np.ones((4, 4)) + np.eye(4)
-    leg_m = np.array([1], dtype=np.int64)
-    ptr = np.array([0, 1, 1, 1], dtype=np.int64)
-    cell = np.array([0], dtype=np.int64)
-    w = np.ones(1)
-    var = np.ones((1, 2))
-    cells = np.array([0, 1], dtype=np.int64)
-    node_legs(np.array([0, 1, 1], dtype=np.int64), np.array([0, 1], dtype=np.int64), cells[:1].copy(), w, np.ones(1))
-    header = np.zeros((0, 5), dtype=np.int64)
-    idata = np.zeros(0, dtype=np.int64)
-    fdata = np.zeros(0)
-    K = np.zeros((0, 0))
-    for _ in range(2):
-        r = K.shape[0]
-        g, S, G, Ut, Vt, Pcc, Bcc = state_terms(P, P, header, idata, fdata, r, cells, K, leg_m, ptr, cell, w, var, 2)
-        for em in (0, 1):
-            child_terms(P, P, header, idata, fdata, r, cells[::-1].copy(), K, leg_m, ptr, cell, w, var, 2, cells, Ut,
-                        Vt, Pcc, Bcc, S[0], G[0], em, cell, cell, w, np.zeros(2, dtype=np.int64))
-        Linv, Y, K = edge_terms(S[0], G[0], 1, cell, cell, w, Ut, Vt, K)
-        header = np.array([[1, r, 1, 0, 0]], dtype=np.int64)
-        idata = np.array([0, 0], dtype=np.int64)
-        fdata = np.concatenate([w, Linv.ravel(), Y.ravel()])
+    table = NodeTable(2, 1)
+    leg = (np.array([0, 1, 2], dtype=np.int64), np.array([0, 1], dtype=np.int64), np.ones(2), np.ones(2))
+    for node in (0, 1):
+        table.add(node, [leg])
+    neighbours = np.array([[1], [0]], dtype=np.int64)
+    costs = np.ones((2, 1))
+    known = np.ones(2, dtype=np.bool_)
+    b, M, _, _, cells, m, rptr, var, _, _, nz_cell, _, nz_w = node_view(table.ipool, table.fpool, table.table, 0, 1)
+    header, idata = np.zeros((0, 5), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    fdata, K = np.zeros(0), np.zeros((0, 0))
+    g, Li, G, UV, Pcc, Bcc = state_terms(P, P, header, idata, fdata, 0, cells, K, m, rptr, nz_cell, nz_w, var, M)
+    terms = (header, idata, fdata, 0, K, UV, Pcc, Bcc, Li, G)
+    step_terms(P, P, table.ipool, table.fpool, table.table, 1, 0, 0, 1, *terms)
+    rng = np.random.default_rng(0)
+    for mode in (0, 1):
+        rollout(P, P, table.ipool, table.fpool, table.table, neighbours, costs, known, rng, 3.5, 1e-9, 0.9, 1.0, 8.0,
+                1.0, mode, 0, 10.0, 1.0, g, 0, 0.0, 1.0, *terms)

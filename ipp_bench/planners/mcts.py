@@ -38,13 +38,25 @@ q^2 r); a state below it starts from its parent's (it keeps its rows of U and V 
 (P D P)_cc): on the cells both nodes' legs see (about nine in ten) they are the parent's, the other
 cells' rows are rebuilt from the root, and the edge's block A (m columns) updates them all, ``P_cc -=
 A_c A_c^T`` and ``(P D P)_cc += A_c T_c^T + T_c A_c^T`` with ``T = A K_aa / 2 + U K_ua - P0 D A`` (K_aa,
-K_ua: K's new corner and column block), in O(q^2 m + q r m) (:func:`~ipp_bench.planners._search_kernels.child_terms`).
+K_ua: K's new corner and column block), in O(q^2 m + q r m) (:func:`~ipp_bench.planners._search_kernels.child_terms`;
+a state keeps each of its legs' L^-1 and G, and its rows ``UV = [Uc^T | Vc^T]``).
 Then b Cholesky factorisations of at most M x M (compiled, :mod:`~ipp_bench.planners._search_kernels`),
 instead of the reference's O(b M q n) batched gain and its O(n^2 m) copy and downdate of the covariance
 per edge; an edge adds K's new row and corner, ``U^T D A = (Z^T - K Y^T) L^-T`` (``Z = W V``) and
 ``A^T D A = L^-1 G L^-T``. A child's terms are built only when
-its own gains are asked for (a rollout's last move, which crosses the horizon, never needs them). The
-quantities are the reference's in exact arithmetic and agree to round-off (~1e-15 of the largest gain);
+its own gains are asked for (a rollout's last move, which crosses the horizon, never needs them).
+
+The tree (selection, widening, backup) runs in Python; each rollout runs compiled, from the tree's new
+state to its end (:func:`~ipp_bench.planners._search_kernels.rollout`): the same moves, drawn with the
+planner's generator (one ``random()`` per move against the same cumulative softmax, NumPy's sums in their
+order; ``exp`` is the C library's, which can differ from NumPy's in the last bit, so a draw within ~1e-16
+of a boundary between two moves could go the other way), the same rewards and discounts. It stops to let
+Python set a node's flight times the first time the search reaches it in an episode (the mission's clock,
+as the reference reads it). The legs' layout (:func:`~ipp_bench.planners._search_kernels.node_legs`, every
+node's, in one table) is static for a roadmap, camera and measurement spacing: it is built for every node
+when a planner is first reset on a roadmap (0.2 s at 15 x 15, 0.8 s at 30 x 30) and kept for the process.
+
+The quantities are the reference's in exact arithmetic and agree to round-off (~1e-15 of the largest gain);
 the root's gains are computed exactly as the reference computes them, so that legs that tie exactly
 there (mirror images, frequent at the start) are ordered alike. Deeper in the tree an exact tie can
 still be broken the other way by rounding, and the two searches then grow different trees
@@ -67,7 +79,7 @@ import numpy as np
 from ..belief import LegBatch, trace_reductions
 from ..config import check_integer, check_number
 from ..mission import TIME_TOL_S
-from .base import GraphPlanner, softmax, stacked_leg
+from .base import GraphPlanner, stacked_leg
 
 #: the most simulations per decision (a decision at 10^5 takes about half an hour)
 MAX_SIMULATIONS = 100_000
@@ -131,49 +143,33 @@ def _near_ties(rates: np.ndarray) -> bool:
 
 class _Legs:
     """A roadmap node's legs as the low-rank gains use them (static for an episode;
-    :func:`~ipp_bench.planners._search_kernels.node_legs`).
+    :func:`~ipp_bench.planners._search_kernels.node_legs`): views of the node table's pools.
 
     Attributes:
         size: k, the node's legs; index (b,): those that see something; row: (k,) each leg's place among
             them (-1: the leg sees nothing).
         cells: (q,) the cells they see, ascending; m: (b,) each one's read-out rows; M: the most rows;
             var: (b, M) their noise variances (padding: 1).
-        pair_ptr, pair_cell, pair_w: for each leg j and pair of its rows (a, c), c <= a, the products
-            ``w_a[x] w_c[y]`` of their weights and the flat index ``x q + y`` of their cells in the q x q block.
+        nz_cell, nz_w: the legs' nonzero weights (index in ``cells``, value), leg by leg and row by row; rptr
+            (b, M + 1): where each leg's rows start among them.
         nz: per leg, (row, index in ``cells``, weight) of its nonzero weights, and (row, map cell) concatenated.
-        batch: the legs as the reference scores them (:class:`~ipp_bench.belief.LegBatch`), built when first
-            asked for.
     """
 
-    __slots__ = ("size", "index", "row", "cells", "m", "M", "var", "pair_ptr", "pair_cell", "pair_w", "nz", "batch")
+    __slots__ = ("size", "index", "row", "cells", "m", "M", "var", "rptr", "nz_cell", "nz_w", "nz")
 
-    def __init__(self, legs: list, kernels):
-        self.size = len(legs)
-        self.batch = None
-        rows = [(0, 0) if leg is None else (leg[0].size - 1, leg[1].size) for leg in legs]
-        leg_rows = np.concatenate([[0], np.cumsum([r for r, _ in rows])]).astype(np.int64)
-        present = [leg for leg in legs if leg is not None]
-        if present:
-            offsets = np.cumsum([0] + [nnz for _, nnz in rows if nnz])[:-1]
-            row_ptr = np.concatenate([[0]] + [leg[0][1:] + o for leg, o in zip(present, offsets)]).astype(np.int64)
-            cells, weights, var = (np.concatenate([leg[i] for leg in present]) for i in (1, 2, 3))
-        else:
-            row_ptr, cells, weights, var = np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), \
-                np.zeros(0)
-        (self.index, self.cells, self.m, self.var, self.pair_ptr, self.pair_cell, self.pair_w, ptr, nz_row, nz_cell,
-         nz_w) = kernels.node_legs(leg_rows, row_ptr, cells.astype(np.int64), weights, var)
-        self.M = self.var.shape[1]
-        self.row = np.full(self.size, -1, dtype=np.int64)
-        self.row[self.index] = np.arange(self.index.size)
-        self.nz = []
-        for j in range(self.index.size):
-            a, x = nz_row[ptr[j]:ptr[j + 1]], nz_cell[ptr[j]:ptr[j + 1]]
-            self.nz.append((a, x, nz_w[ptr[j]:ptr[j + 1]], np.concatenate([a, self.cells[x]])))
+    def __init__(self, table, node: int, kernels):
+        (b, self.M, self.row, self.index, self.cells, self.m, self.rptr, self.var, ptr, nz_row, nz_cell, nz_ints,
+         nz_w) = kernels.node_view(table.ipool, table.fpool, table.table, node, table.k)
+        self.size = table.k
+        self.nz_cell, self.nz_w = nz_cell, nz_w
+        self.nz = [(nz_row[ptr[j]:ptr[j + 1]], nz_cell[ptr[j]:ptr[j + 1]], nz_w[ptr[j]:ptr[j + 1]],
+                    nz_ints[2 * ptr[j]:2 * ptr[j + 1]]) for j in range(b)]
 
 
-#: the edge arguments of ``_search_kernels.child_terms`` for a leg that sees nothing
-_NO_EDGE = (np.zeros((0, 0)), np.zeros((0, 0)), 0, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
-            np.zeros(0), np.zeros(0, dtype=np.int64))
+#: the legs' layouts of the last roadmaps searched ((camera, spacing, neighbours, positions) -> (node table, the
+#: legs' rows)), shared by the planners of a process: the layout is static for a roadmap
+_LAYOUTS: dict[tuple, tuple] = {}
+_MAX_LAYOUTS = 4
 
 
 class _State:
@@ -181,7 +177,7 @@ class _State:
     asked for."""
 
     __slots__ = ("node", "parent", "action", "header", "idata", "fdata", "r", "K", "remaining", "elapsed", "costs",
-                 "order", "gains", "children", "visits", "S", "G", "Ut", "Vt", "Pcc", "Bcc")
+                 "order", "gains", "children", "visits", "Li", "G", "UV", "Pcc", "Bcc")
 
     def __init__(self, node: int, parent: _State | None, action: int, remaining: float, elapsed: float,
                  costs: np.ndarray):
@@ -201,9 +197,9 @@ class _State:
         self.gains: np.ndarray | None = None  # one-step reward per action
         self.children: dict[int, list] = {}  # action -> [child, reward, discount, visits, value sum]
         self.visits = 0
-        # of the gains, for the edges out of this state: S = W P W^T + R and G = W P D P W^T, each (b, M, M)
-        # over the node's legs, and the rows Ut = Uc^T, Vt = Vc^T (r, q) of U and V on the node's cells
-        self.S = self.G = self.Ut = self.Vt = None
+        # of the gains, for the edges out of this state: Li = L^-1 (L L^T = S = W P W^T + R) and G = W P D P W^T,
+        # each (b, M, M) over the node's legs, and the rows UV = [Uc^T | Vc^T] (r, 2 q) of U and V on its cells
+        self.Li = self.G = self.UV = None
         # P and P D P (q, q) on the node's cells (a child starts from them: _search_kernels.child_terms)
         self.Pcc = self.Bcc = None
 
@@ -238,12 +234,28 @@ class MCTSPlanner(GraphPlanner):
 
         _search_kernels.warm_up()  # compiled once per process, before the first decision's clock starts
         self._kernels = _search_kernels
-        self._legs: dict[tuple[int, int], tuple | None] = {}
-        self._node_legs: dict[int, _Legs] = {}
         self._camera = _search_kernels.camera_args(view.sensor)
         self._roadmap = view.roadmap
+        self._neighbours = np.array(view.roadmap.neighbours, dtype=np.int64)  # writable: the type the kernels take
         self._spacing = view.config.mission.measurement_spacing
-        self._costs: dict[int, np.ndarray] = {}
+        nodes, k = self._neighbours.shape
+        # the legs' layout is static for a roadmap, camera and measurement spacing: kept across episodes
+        key = (self._camera, float(self._spacing), self._neighbours.tobytes(),
+               np.asarray(view.roadmap.positions, dtype=np.float64).tobytes())
+        layout = _LAYOUTS.get(key)
+        # the table of the nodes' legs, and each leg's read-out rows ((node, action) -> rows, None: sees nothing)
+        if layout is None:
+            while len(_LAYOUTS) >= _MAX_LAYOUTS:
+                _LAYOUTS.pop(next(iter(_LAYOUTS)))
+            self._table, self._legs = _search_kernels.NodeTable(nodes, k), {}
+            for node in range(nodes):  # every node, once per roadmap and process (0.2 s at 15 x 15), in no decision
+                self._lay_out(node)
+            self._table.compact()
+            layout = _LAYOUTS[key] = (self._table, self._legs)
+        self._table, self._legs = layout
+        self._batches: dict[int, LegBatch] = {}
+        self._cost_rows = np.zeros((nodes, k))  # row i: flight times [s] from node i (the mission's clock), where
+        self._known = np.zeros(nodes, dtype=np.bool_)  # known: set when the search first reaches node i
         self._B = None
 
     # -- the model: static per episode ---------------------------------------------------------
@@ -260,25 +272,28 @@ class MCTSPlanner(GraphPlanner):
             self._legs[key] = rows if rows[3].size else None
         return self._legs[key]
 
+    def _lay_out(self, node: int) -> None:
+        """Lay out node ``node``'s legs in the node table (once)."""
+        if not self._table.built(node):
+            self._table.add(node, [self._leg(node, a) for a in range(self._table.k)])
+
     def _legs_of(self, node: int) -> _Legs:
-        legs = self._node_legs.get(node)
-        if legs is None:
-            legs = self._node_legs[node] = _Legs([self._leg(node, a) for a in range(self._roadmap.k)], self._kernels)
-        return legs
+        self._lay_out(node)
+        return _Legs(self._table, node, self._kernels)
 
     def _batch(self, node: int) -> LegBatch:
         """The legs of ``node`` as the reference scores them (dense, stacked; cached)."""
-        legs = self._legs_of(node)
-        if legs.batch is None:
-            legs.batch = LegBatch([stacked_leg(self.view, node, a) for a in range(legs.size)])
-        return legs.batch
+        batch = self._batches.get(node)
+        if batch is None:
+            batch = self._batches[node] = LegBatch([stacked_leg(self.view, node, a) for a in range(self._table.k)])
+        return batch
 
     def _node_costs(self, node: int) -> np.ndarray:
         """(k,) flight times [s] from node ``node`` to its neighbours (the mission's clock; cached)."""
-        costs = self._costs.get(node)
-        if costs is None:
-            costs = self._costs[node] = self.view.neighbour_durations(node)
-        return costs
+        if not self._known[node]:
+            self._cost_rows[node] = self.view.neighbour_durations(node)
+            self._known[node] = True
+        return self._cost_rows[node]
 
     # -- the model: per decision ---------------------------------------------------------------
     def _begin(self, roi: np.ndarray) -> None:
@@ -287,58 +302,38 @@ class MCTSPlanner(GraphPlanner):
         self._P = np.ascontiguousarray(self.view.belief.cov)
         self._B = self._kernels.roi_product(self._P, roi, self._B)
 
-    def _materialise(self, state: _State) -> None:
-        """The factor of ``state``: its parent's with the edge that led to it appended (its L^-1 and Y = W U
-        from :func:`~ipp_bench.planners._search_kernels.edge_terms`)."""
-        parent, a = state.parent, state.action
-        legs = self._legs_of(parent.node)
-        j = int(legs.row[a])
-        if j < 0:  # the leg sees nothing: the same posterior
-            state.header, state.idata, state.fdata = parent.header, parent.idata, parent.fdata
-            state.r, state.K = parent.r, parent.K
-            return
-        m = int(legs.m[j])
-        rows, cells, w, ints = legs.nz[j]
-        Linv, Y, state.K = self._kernels.edge_terms(parent.S[j], parent.G[j], m, rows, cells, w, parent.Ut, parent.Vt,
-                                                    parent.K)
-        r = parent.r
-        head = np.array([[m, r, w.size, parent.fdata.size, parent.idata.size]], dtype=np.int64)
-        state.header = np.concatenate([parent.header, head])
-        state.idata = np.concatenate([parent.idata, ints])
-        state.fdata = np.concatenate([parent.fdata, w, Linv.ravel(), Y.ravel()])
-        state.r = r + m
+    @staticmethod
+    def _terms(state: _State) -> tuple:
+        """The terms of a scored state in the order the kernels take them (header to G)."""
+        return (state.header, state.idata, state.fdata, state.r, state.K, state.UV, state.Pcc, state.Bcc, state.Li,
+                state.G)
+
+    @staticmethod
+    def _set_terms(state: _State, Li, G, UV, Pcc, Bcc, header, idata, fdata, r, K) -> None:
+        state.Li, state.G, state.UV, state.Pcc, state.Bcc = Li, G, UV, Pcc, Bcc
+        state.header, state.idata, state.fdata, state.r, state.K = header, idata, fdata, r, K
 
     def _gains(self, state: _State) -> np.ndarray:
-        """(k,) predicted reductions of Tr(P) over the decision's ROI, one per leg out of ``state``."""
-        legs = self._legs_of(state.node)
+        """(k,) predicted reductions of Tr(P) over the decision's ROI, one per leg out of ``state`` (its
+        parent scored), and its terms."""
         parent = state.parent
-        if parent is None or parent.Pcc is None or not legs.index.size:
-            if state.header is None:
-                self._materialise(state)
-            out = np.zeros(legs.size)
-            if not legs.index.size:
-                return out
-            g, state.S, state.G, state.Ut, state.Vt, state.Pcc, state.Bcc = self._kernels.state_terms(
-                self._P, self._B, state.header, state.idata, state.fdata, state.r, legs.cells, state.K, legs.m,
-                legs.pair_ptr, legs.pair_cell, legs.pair_w, legs.var, legs.M)
-            out[legs.index] = g
-            return out
-        # from the parent's terms, with the edge that leads here (the cells both nodes see keep their rows)
-        plegs = self._legs_of(parent.node)
-        j = int(plegs.row[state.action])
-        edge = (parent.S[j], parent.G[j], int(plegs.m[j]), *plegs.nz[j]) if j >= 0 else _NO_EDGE
-        (g, state.S, state.G, state.Ut, state.Vt, state.Pcc, state.Bcc, header, idata, fdata,
-         K) = self._kernels.child_terms(self._P, self._B, parent.header, parent.idata, parent.fdata, parent.r,
-                                        legs.cells, parent.K, legs.m, legs.pair_ptr, legs.pair_cell, legs.pair_w,
-                                        legs.var, legs.M, plegs.cells, parent.Ut, parent.Vt, parent.Pcc, parent.Bcc,
-                                        *edge)
-        if j >= 0:
-            state.header, state.idata, state.fdata, state.K = header, idata, fdata, K
-            state.r = parent.r + edge[2]
-        else:  # the leg sees nothing: the same posterior
-            state.header, state.idata, state.fdata = parent.header, parent.idata, parent.fdata
-            state.r, state.K = parent.r, parent.K
+        if parent is not None:  # from the parent's terms and the edge that leads here (_search_kernels.step_terms)
+            self._lay_out(state.node)
+            out = self._kernels.step_terms(self._P, self._B, self._table.ipool, self._table.fpool, self._table.table,
+                                           self._table.k, parent.node, state.action, state.node, *self._terms(parent))
+            self._set_terms(state, *out[1:])
+            return out[0]
+        legs = self._legs_of(state.node)
         out = np.zeros(legs.size)
+        state.header, state.K = np.zeros((0, 5), dtype=np.int64), np.zeros((0, 0))
+        state.idata, state.fdata, state.r = np.zeros(0, dtype=np.int64), np.zeros(0), 0
+        if not legs.index.size:
+            state.Li = state.G = np.zeros((0, legs.M, legs.M))
+            state.UV = state.Pcc = state.Bcc = np.zeros((0, 0))
+            return out
+        g, state.Li, state.G, state.UV, state.Pcc, state.Bcc = self._kernels.state_terms(
+            self._P, self._B, state.header, state.idata, state.fdata, state.r, legs.cells, state.K, legs.m,
+            legs.rptr, legs.nz_cell, legs.nz_w, legs.var, legs.M)
         out[legs.index] = g
         return out
 
@@ -371,24 +366,35 @@ class MCTSPlanner(GraphPlanner):
 
     # -- search -----------------------------------------------------------------------------
     def _rollout(self, state: _State) -> float:
+        """The rollout's return from the tree's new state ``state`` (compiled: _search_kernels.rollout), which
+        it expands on the way."""
         cfg = self.settings
-        total, discount = 0.0, 1.0
+        if state.elapsed >= cfg.horizon_s - TIME_TOL_S:
+            state.order = np.zeros(0, dtype=np.int64)
+            return 0.0
+        self._lay_out(state.node)
+        parent, table = state.parent, self._table
+        args = tuple(map(float, (cfg.horizon_s, TIME_TOL_S, cfg.gamma, cfg.discount_period_s, cfg.rollout_lambda,
+                                 self._unit)))  # the types the kernels were compiled for
+        mode, go_on = 0, (parent.node, float(state.remaining), float(state.elapsed), parent.gains, state.action, 0.0,
+                          1.0, *self._terms(parent))
         while True:
-            self._expand_info(state)
-            acts = state.order
-            if acts.size == 0:
-                break
-            rate = state.gains[acts] / state.costs[acts]
-            top = rate.max()
-            if top <= 0:
-                break
-            cdf = np.cumsum(softmax(cfg.rollout_lambda * rate / top))
-            cdf /= cdf[-1]  # the draw of rng.choice(acts, p=...), without its checks: the same number, the same move
-            a = int(acts[np.searchsorted(cdf, self.rng.random(), side="right")])
-            state, r, d = self._transition(state, a)
-            total += discount * r
-            discount *= d
-        return total
+            (status, need, total, discount, gains, order, terms, node, remaining, elapsed, now_gains, action,
+             now_terms) = self._kernels.rollout(self._P, self._B, table.ipool, table.fpool, table.table,
+                                                self._neighbours, self._cost_rows, self._known, self.rng, *args, mode,
+                                                *go_on)
+            if mode == 0:
+                state.gains, state.order = gains, order
+                self._set_terms(state, *terms)
+            if status == 0:
+                return total
+            # the move drawn leads to a node the search had not reached: its flight times, its legs, and on
+            self._node_costs(need)
+            if elapsed + self._cost_rows[node, action] < cfg.horizon_s - TIME_TOL_S:
+                self._lay_out(need)
+            Li, G, UV, Pcc, Bcc, header, idata, fdata, r, K = now_terms
+            mode, go_on = 1, (node, remaining, elapsed, now_gains, action, total, discount, header, idata, fdata, r,
+                              K, UV, Pcc, Bcc, Li, G)
 
     def _simulate(self, state: _State) -> float:
         cfg = self.settings
@@ -424,9 +430,9 @@ class MCTSPlanner(GraphPlanner):
         self._unit = 1.0
         # from where the robot is (on the graph tasks, exactly the node; in MuJoCo, near it)
         root = _State(node, None, -1, view.remaining_s, 0.0, view.neighbour_durations(node, view.position))
-        root.header, root.K = np.zeros((0, 5), dtype=np.int64), np.zeros((0, 0))
-        root.idata, root.fdata = np.zeros(0, dtype=np.int64), np.zeros(0)
         self._expand_info(root)
+        # the env's mask: the affordable legs and, in a team, not a node a teammate holds
+        root.order = root.order[view.action_mask()[root.order]]
         if root.order.size == 0:
             raise ValueError(f"{self.name}: no affordable neighbour; the episode should have ended")
         return root

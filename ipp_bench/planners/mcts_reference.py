@@ -158,6 +158,8 @@ class ReferenceMCTSPlanner(GraphPlanner):
         # from where the robot is (on the graph tasks, exactly the node; in MuJoCo, near it)
         root = _State(node, view.belief.cov, view.remaining_s, 0.0, view.neighbour_durations(node, view.position))
         self._expand_info(root)
+        # the env's mask: the affordable legs and, in a team, not a node a teammate holds
+        root.order = root.order[view.action_mask()[root.order]]
         if root.order.size == 0:
             raise ValueError(f"{self.name}: no affordable neighbour; the episode should have ended")
         return root

@@ -81,8 +81,8 @@ def test_lowrank_gains_equal_the_dense_reference_along_tree_paths(task):
 @pytest.mark.parametrize("task", TASKS_15)
 def test_terms_from_the_parent_equal_those_from_the_root(task):
     """A state's terms from its parent's (``child_terms``: the shared cells' rows kept, the others rebuilt, the
-    edge's rank-m update) are those rebuilt from the root (``state_terms``), to round-off: the gains, S, G and
-    the rows of U, V, P and P D P on the node's cells."""
+    edge's rank-m update) are those rebuilt from the root (``state_terms``), to round-off: the gains, each leg's
+    L^-1 (L L^T = S) and G, and the rows of U, V, P and P D P on the node's cells."""
     env, obs = _episode(task, seed=5)
     fast = make_planner("mcts:simulations=4,horizon_s=1000,search=lowrank")
     fast.reset(view_for(fast, env.unwrapped), 5)
@@ -98,9 +98,9 @@ def test_terms_from_the_parent_equal_those_from_the_root(task):
                 continue
             assert state.parent.Pcc is not None  # scored from its parent's terms
             full = _search_kernels.state_terms(fast._P, fast._B, state.header, state.idata, state.fdata, state.r,
-                                               legs.cells, state.K, legs.m, legs.pair_ptr, legs.pair_cell,
-                                               legs.pair_w, legs.var, legs.M)
-            mine = (state.gains[legs.index] * fast._unit, state.S, state.G, state.Ut, state.Vt, state.Pcc, state.Bcc)
+                                               legs.cells, state.K, legs.m, legs.rptr, legs.nz_cell, legs.nz_w,
+                                               legs.var, legs.M)
+            mine = (state.gains[legs.index] * fast._unit, state.Li, state.G, state.UV, state.Pcc, state.Bcc)
             for got, want in zip(mine, full):
                 assert got.shape == want.shape
                 np.testing.assert_allclose(got, want, rtol=0, atol=RTOL * max(np.abs(want).max(initial=0.0), 1e-300))
@@ -113,11 +113,12 @@ def test_a_leg_that_sees_nothing_keeps_the_factor():
     env, obs = _episode("ipp_bench/Grid15Eval-v1", seed=3, steps=1)
     fast = make_planner("mcts:simulations=2,search=lowrank")
     fast.reset(view_for(fast, env.unwrapped), 3)
+    fast._table, fast._legs = _search_kernels.NodeTable(*fast._table.table.shape[:1], fast._table.k), {}  # its own
     root = fast._root(obs)
     a = int(root.order[0])
     child, _, _ = fast._transition(root, a)
+    assert not fast._table.built(child.node)  # laid out when first scored
     fast._legs[(child.node, 0)] = None  # pretend the child's first leg sees nothing
-    fast._node_legs.pop(child.node, None)
     fast._expand_info(child)
     assert child.gains[0] == 0.0
     grandchild, reward, _ = fast._transition(child, 0)
@@ -142,6 +143,51 @@ def test_lowrank_search_picks_the_reference_move(task, seed):
         assert fast.rng.bit_generator.state == ref.rng.bit_generator.state  # the same draws, as many
         obs, _, term, trunc, _ = env.step(a_ref)
         assert not (term or trunc)
+
+
+def test_a_search_laying_out_its_legs_as_it_goes_moves_alike():
+    """The compiled rollout stops where a node's legs are not laid out yet, lets Python lay them out, and goes
+    on: the same moves and draws as with every node laid out beforehand."""
+    env, obs = _episode("ipp_bench/Hotspots15Eval-v2", seed=4, steps=1)
+    view = view_for(make_planner("mcts"), env.unwrapped)
+    lazy, full = (make_planner("mcts:simulations=24,search=lowrank") for _ in range(2))
+    full.reset(view, 4)
+    lazy.reset(view, 4)
+    lazy._table, lazy._legs = _search_kernels.NodeTable(*lazy._table.table.shape[:1], lazy._table.k), {}
+    for _ in range(2):
+        lazy.rng.bit_generator.state = full.rng.bit_generator.state
+        a = full.act(obs)
+        assert lazy.act(obs) == a
+        assert lazy.rng.bit_generator.state == full.rng.bit_generator.state
+        obs, *_ = env.step(a)
+    built = int(lazy._table.table[:, _search_kernels.T_BUILT].sum())
+    assert 0 < built < lazy._table.table.shape[0]  # the nodes the searches reached, no others
+
+
+def test_the_rollout_draws_as_numpy_does():
+    """The compiled rollout's move: one ``rng.random()`` against the cumulative softmax of ``lambda * rate /
+    max rate`` (NumPy's pairwise sum, in its order): the move and the draws of ``rng.choice(order, p=...)``."""
+    rng = np.random.default_rng(2)
+    for n in list(range(1, 40)) + [130, 300]:
+        a = rng.random(n)
+        assert _search_kernels._pairwise_sum(a, 0, n) == a.sum()
+    same = 0
+    for t in range(400):
+        k = int(rng.integers(2, 21))
+        gains = rng.random(k) * (rng.random(k) < 0.8)
+        costs = rng.uniform(0.5, 3.0, k)
+        order = np.flatnonzero(rng.random(k) < 0.9)
+        if order.size == 0 or gains[order].max() <= 0:
+            continue
+        mine, ref = np.random.default_rng(t), np.random.default_rng(t)
+        rate = gains[order] / costs[order]
+        logits = 8.0 * rate / rate.max()
+        p = np.exp(logits - logits.max())
+        want = int(ref.choice(order, p=p / p.sum()))
+        assert _search_kernels._draw(mine, gains, costs, order, 8.0) == want
+        assert mine.bit_generator.state == ref.bit_generator.state
+        same += 1
+    assert same > 300
 
 
 def test_lowrank_search_is_deterministic_per_seed():
@@ -185,6 +231,40 @@ def test_no_kernel_compiles_inside_a_decision():
         for _ in range(2):
             env.unwrapped.mission.fly_to(planner.next_waypoint())
     assert {name: len(f.signatures) for name, f in kernels.items()} == compiled
+
+
+@pytest.mark.slow
+def test_no_kernel_compiles_inside_a_decision_in_a_fresh_process():
+    """The same, in a process of its own, where no other test compiled anything first: what the planners' resets
+    compile (``warm_up``) covers every type their decisions pass."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import numba
+        from ipp_bench.envs import make_env
+        from ipp_bench.planners import _search_kernels, make_planner, view_for
+        _search_kernels.warm_up()
+        kernels = {n: f for n, f in vars(_search_kernels).items() if isinstance(f, numba.core.registry.CPUDispatcher)}
+        before = {n: len(f.signatures) for n, f in kernels.items()}
+        for task in ("ipp_bench/Grid15Eval-v1", "ipp_bench/Hotspots30Eval-v2"):
+            for spec in ("mcts:simulations=6,search=lowrank", "cmaes:max_evals=24,evaluation=batched"):
+                env = make_env(task)
+                obs, _ = env.reset(seed=3)
+                planner = make_planner(spec)
+                planner.reset(view_for(planner, env.unwrapped), 3)
+                for _ in range(2):
+                    if spec.startswith("mcts"):
+                        obs, *_ = env.step(planner.act(obs))
+                    else:
+                        env.unwrapped.mission.fly_to(planner.next_waypoint())
+        after = {n: len(f.signatures) for n, f in kernels.items()}
+        print({n: after[n] - before[n] for n in after if after[n] != before[n]})
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == "{}"
 
 
 @pytest.mark.parametrize("spec, message", [
@@ -329,3 +409,17 @@ def test_cmaes_batched_flies_the_reference_waypoints():
         w_ref, w_new = ref.next_waypoint(), new.next_waypoint()
         np.testing.assert_allclose(w_new, w_ref, atol=1e-9)
         env.unwrapped.mission.fly_to(w_ref)
+
+
+def test_the_legs_layout_is_kept_per_roadmap():
+    """The laid-out legs are static for a roadmap, camera and spacing: planners on one task share them (across
+    episodes), another map has its own."""
+    tables = []
+    for task in ("ipp_bench/Grid15Eval-v1", "ipp_bench/Grid15Eval-v1", "ipp_bench/Grid30Eval-v1"):
+        env = make_env(task)
+        env.reset(seed=0)
+        planner = make_planner("mcts:search=lowrank")
+        planner.reset(view_for(planner, env.unwrapped), 0)
+        tables.append(planner._table)
+    assert tables[0] is tables[1] and tables[2] is not tables[0]
+    assert tables[2].table.shape[0] == 4 * tables[0].table.shape[0]  # 30 x 30: four times the nodes

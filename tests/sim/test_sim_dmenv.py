@@ -120,7 +120,10 @@ def test_the_viewer_without_a_display_is_one_line(capsys, monkeypatch):
     assert err.startswith("python -m ipp_bench.sim.viewer: error: the viewer opens a window and no display was found")
     assert len(err.strip().splitlines()) == 1 and "ipp-bench demo" in err
     assert main(["--task", "ipp_bench/Grid15Eval-v1"]) == 2  # checked before any window, display or not
-    assert "is not a MuJoCo deployment" in capsys.readouterr().err
+    assert "is not a single-drone MuJoCo deployment" in capsys.readouterr().err
+    assert main(["--task", "ipp_bench/MuJoCoWeed15Team2-v1"]) == 2  # a team: the viewer flies one drone
+    err = capsys.readouterr().err
+    assert "is not a single-drone MuJoCo deployment" in err and "MuJoCoWeed15Team2" not in err.split("valid are")[1]
 
 
 @pytest.mark.timeout(120)

@@ -40,6 +40,12 @@ from ipp_bench.sim.world import WeedWorld
 _TOL = 1e-9
 
 
+def inside_map(mission: Mission, p) -> np.ndarray:
+    """``p`` [m] clipped to the map (and above the ground): where a leg cut short by the budget ends."""
+    width, height = mission.config.grid.size_m
+    return np.array([min(max(p[0], 0.0), width), min(max(p[1], 0.0), height), max(p[2], 1e-3)])
+
+
 class MuJoCoPlatform:
     """What the MuJoCo platforms share: the world, the episode's start, the camera read-outs, the logs.
 
@@ -120,8 +126,7 @@ class MuJoCoPlatform:
         return on_step, state
 
     def _inside(self, mission: Mission, p: np.ndarray) -> np.ndarray:
-        width, height = mission.config.grid.size_m
-        return np.array([min(max(p[0], 0.0), width), min(max(p[1], 0.0), height), max(p[2], 1e-3)])
+        return inside_map(mission, p)
 
     def _read(self, time_s: float) -> Record:
         mission = self._mission

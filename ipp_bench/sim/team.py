@@ -37,6 +37,7 @@ from ipp_bench.mission import LegOutcome, Mission, Record
 from ipp_bench.sensor import Observation
 from ipp_bench.sim.controller import ContinuousLeg
 from ipp_bench.sim.flight import step_together
+from ipp_bench.sim.mission import inside_map
 from ipp_bench.sim.render import azimuth_to_centre, chase_camera
 from ipp_bench.sim.world import SimConfig, WeedWorld, split_sim_settings
 from ipp_bench.team import TeamConfig, TeamMission
@@ -116,8 +117,7 @@ class SimTeam:
         else:  # out of budget on the way: the leg ends where the reference is then
             p, v, _ = leg.sample(limit - t0)
             f.ref_pos, f.ref_vel, f.ref_time = np.array(p), np.array(v), limit
-            width, height = mission.config.grid.size_m
-            position = np.array([min(max(p[0], 0.0), width), min(max(p[1], 0.0), height), max(p[2], 1e-3)])
+            position = inside_map(mission, p)
         self.legs[uav] = _CommittedLeg(leg, t0, limit, whole)
         return LegOutcome([], limit, limit - t0, 0.0, position, mission._since_measurement)
 

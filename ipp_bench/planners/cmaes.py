@@ -7,8 +7,7 @@ reduction of Tr(P) over the belief ROI from the measurements the mission would t
 path (same spacing rule, values not needed), divided by the path's flight time, the path cut at
 the remaining budget. The first waypoint is flown; the rest warm-starts the next optimisation.
 
-How a population is scored with ``evaluation = "batched"`` (on the dense belief; opt in: the default,
-``"reference"``, keeps the rows of the published boards until they are flown again): the
+How a population is scored with ``evaluation = "batched"`` (the default, on the dense belief): the
 reduction of Tr(P) over the ROI D by a path's read-outs (rows W on cells c, noise R) is
 ``Tr(S^-1 G)`` with ``S = W P[c, c] W^T + R`` and ``G = W B[c, c] W^T``, ``B = P D P``: the sum over
 the ROI of the Kalman update's ``diag(C S^-1 C^T)`` (``C = P H^T``) regrouped. B is computed once
@@ -64,7 +63,7 @@ class CMAESConfig:
     sigma0: float = 0.25
     min_leg_m: float = 2.5  # [m]
     reach_m: float = 0.0  # [m] 0: the whole map
-    evaluation: str = "reference"
+    evaluation: str = "batched"
 
     def __post_init__(self):
         check_integer("cmaes.n_waypoints", self.n_waypoints, 1, 100)
@@ -94,6 +93,11 @@ class CMAESPlanner(ContinuousPlanner):
 
             _search_kernels.require_numba("cmaes:evaluation=batched")
             self._kernels = _search_kernels
+
+    def fingerprint(self) -> dict[str, str]:
+        """The evaluation, whose rounding can turn a step of CMA-ES: a results folder refuses the other's rows
+        (on a window belief both score with the belief's own prediction)."""
+        return {"evaluation": self.settings.evaluation}
 
     def reset(self, view, seed):
         super().reset(view, seed)

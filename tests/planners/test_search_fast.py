@@ -208,11 +208,11 @@ def test_lowrank_search_is_deterministic_per_seed():
 
 def test_fast_searches_without_numba_name_the_extra(monkeypatch):
     monkeypatch.setattr(_search_kernels, "numba", None)
-    for spec in ("mcts:search=lowrank", "cmaes:evaluation=batched"):
+    for spec in ("mcts", "cmaes", "mcts:search=lowrank", "cmaes:evaluation=batched"):  # the defaults are the fast forms
         with pytest.raises(ImportError, match=r'needs numba: pip install "ipp-bench\[eval\]"'):
             make_planner(spec)
-    make_planner("mcts")  # the references need no numba
-    make_planner("cmaes")
+    make_planner("mcts:search=reference")  # the references need no numba
+    make_planner("cmaes:evaluation=reference")
 
 
 def test_no_kernel_compiles_inside_a_decision():

@@ -319,6 +319,23 @@ def test_a_failing_episode_in_a_worker_process_is_one_line_too(tmp_path):
         run_tiny(tmp_path / "lb", plan, backend="process", workers=2)
 
 
+@pytest.mark.parametrize("spec, key, other", [("mcts:simulations=2", "search", "reference"),
+                                                ("cmaes:max_evals=24", "evaluation", "reference")])
+def test_a_folder_flown_with_the_other_search_refuses_the_same_spec(tmp_path, spec, key, other):
+    """MCTS and CMA-ES record their search in the folder: rows of the reference form (the defaults of
+    an older suite, under the same spec) are refused, not extended with the fast form's."""
+    pytest.importorskip("numba")
+    out = tmp_path / "lb"
+    plan = tiny_plan(tasks=TASKS[:1], planners=(spec,), episodes=1)
+    assert plan.planner_fingerprints[spec] == {key: {"search": "lowrank", "evaluation": "batched"}[key]}
+    run_tiny(out, plan)
+    meta = json.loads((out / "run.json").read_text())
+    meta["fingerprint"]["planner_fingerprints"][spec] = {key: other}  # as flown when the reference was the default
+    (out / "run.json").write_text(json.dumps(meta))
+    with pytest.raises(ResultsMismatchError, match=f"planner_fingerprints.*{key}|{key}.*planner_fingerprints"):
+        run_tiny(out, tiny_plan(tasks=TASKS[:1], planners=(spec,), episodes=1))
+
+
 def test_rerun_refreshes_one_planners_rows_after_its_checkpoint_changed(tmp_path):
     """A retrained checkpoint: the folder refuses its planner's old rows; ``rerun`` drops and flies
     them again, every other row stays byte for byte, and the plain command is then complete."""

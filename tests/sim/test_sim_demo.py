@@ -221,7 +221,9 @@ def test_a_signal_during_the_video_leaves_the_old_one(sig, status, tmp_path):
 
     out = tmp_path / "demo.mp4"
     out.write_bytes(OLD)
-    proc = _demo_process(out, "--budget", "120")
+    # Ctrl-C as at a terminal, even where this test runs in a background job that ignores SIGINT (a child
+    # inherits that, and Python then raises no KeyboardInterrupt)
+    proc = _demo_process(out, "--budget", "120", preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 180
         # the signal comes once the new video has been opened (beside the old one, or over it), well before

@@ -403,17 +403,17 @@ class ResultsStore:
 
     def _refuse_unfingerprinted_rows(self, fingerprints: dict[str, dict[str, str]]) -> None:
         """A folder from before planner fingerprints were recorded may hold rows of a planner whose
-        decisions depend on more than its spec (a checkpoint): which network made them is unknown,
-        so they cannot be kept under today's hash."""
+        decisions depend on more than its spec (the attention planner's checkpoint, the MCTS search,
+        the CMA-ES evaluation): what made them is unknown, so they cannot be kept under today's."""
         if not fingerprints or not self.csv_path.exists():
             return
         with self.csv_path.open(newline="") as fh:
             held = sorted({row.get("planner") for row in csv.DictReader(fh)} & set(fingerprints))
         if held:
             raise ResultsMismatchError(
-                f"{self.dir} predates planner fingerprints and holds rows of {', '.join(held)}, whose "
-                f"network (checkpoint) is not recorded: delete those rows from {self.csv_path.name} to rerun "
-                f"them with the current checkpoint, or pass a new --out DIR")
+                f"{self.dir} predates planner fingerprints and holds rows of {', '.join(held)}, whose decisions "
+                f"depend on what it does not record (a checkpoint, a search form): delete those rows from "
+                f"{self.csv_path.name} to fly them again with today's, or pass a new --out DIR")
 
     def _load(self) -> None:
         """Read finished episodes; note torn lines and incomplete episodes (dropped at begin())."""

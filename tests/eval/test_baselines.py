@@ -74,14 +74,18 @@ EXTRA_MODULES = {"attention": "torch", "cmaes": "cma"}
 #: (the planner of that time had none); their README rows give it
 V0_ATTENTION = "attention:checkpoint=ipp_bench/policies/checkpoints/attention_grid15.pt,stall_legs=0"
 #: folder -> {committed planner label: the spec (paths relative to the repository root) that flies its rows}
-REFLIGHT_SPECS = {"v0": {"attention": V0_ATTENTION}, "v0/quick": {"attention": V0_ATTENTION}}
+#: (and the reference forms of MCTS and CMA-ES, the defaults when they were flown)
+REFLIGHT_SPECS = {"v0": {"attention": V0_ATTENTION, "mcts": "mcts:search=reference",
+                         "cmaes": "cmaes:evaluation=reference"},
+                  "v0/quick": {"attention": V0_ATTENTION, "mcts:simulations=8": "mcts:simulations=8,search=reference",
+                               "cmaes:max_evals=36": "cmaes:max_evals=36,evaluation=reference"}}
 
 #: folder -> (why its command cannot complete it, what the refusal of its README command says)
 NOT_RERUNNABLE = {
-    "v0": ("made before planner fingerprints: run.json does not record its attention rows' checkpoint",
-           "different arguments"),
-    "v0/quick": ("made before planner fingerprints: run.json does not record its attention rows' checkpoint",
-                 "different arguments"),
+    "v0": ("made before planner fingerprints: run.json records neither its attention rows' checkpoint nor "
+           "the search of its MCTS and CMA-ES rows", "different arguments"),
+    "v0/quick": ("made before planner fingerprints: run.json records neither its attention rows' checkpoint "
+                 "nor the search of its MCTS and CMA-ES rows", "different arguments"),
 }
 
 

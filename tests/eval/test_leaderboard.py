@@ -319,18 +319,18 @@ def test_a_failing_episode_in_a_worker_process_is_one_line_too(tmp_path):
         run_tiny(tmp_path / "lb", plan, backend="process", workers=2)
 
 
-@pytest.mark.parametrize("spec, key, other", [("mcts:simulations=2", "search", "reference"),
-                                                ("cmaes:max_evals=24", "evaluation", "reference")])
-def test_a_folder_flown_with_the_other_search_refuses_the_same_spec(tmp_path, spec, key, other):
+@pytest.mark.parametrize("spec, key, default", [("mcts:simulations=2", "search", "lowrank"),
+                                                  ("cmaes:max_evals=24", "evaluation", "batched")])
+def test_a_folder_flown_with_the_other_search_refuses_the_same_spec(tmp_path, spec, key, default):
     """MCTS and CMA-ES record their search in the folder: rows of the reference form (the defaults of
     an older suite, under the same spec) are refused, not extended with the fast form's."""
     pytest.importorskip("numba")
     out = tmp_path / "lb"
     plan = tiny_plan(tasks=TASKS[:1], planners=(spec,), episodes=1)
-    assert plan.planner_fingerprints[spec] == {key: {"search": "lowrank", "evaluation": "batched"}[key]}
+    assert plan.planner_fingerprints[spec] == {key: default}
     run_tiny(out, plan)
     meta = json.loads((out / "run.json").read_text())
-    meta["fingerprint"]["planner_fingerprints"][spec] = {key: other}  # as flown when the reference was the default
+    meta["fingerprint"]["planner_fingerprints"][spec] = {key: "reference"}  # as flown under an older default
     (out / "run.json").write_text(json.dumps(meta))
     with pytest.raises(ResultsMismatchError, match=f"planner_fingerprints.*{key}|{key}.*planner_fingerprints"):
         run_tiny(out, tiny_plan(tasks=TASKS[:1], planners=(spec,), episodes=1))

@@ -14,10 +14,10 @@ Figures:
   (low-rank gains, compiled) and of ``mcts:search=reference`` (a dense covariance per tree edge), their
   ratio, and the same for ``cmaes:evaluation=batched`` against ``cmaes:evaluation=reference``; with the
   machine's load average (``os.getloadavg``) before and after each task, since both are timed on a shared
-  machine. The fast planners' numba kernels are compiled once per process, when such a planner is first
-  reset (never inside a decision); the first line says how long that took. ``mcts:search=lowrank`` lays out
-  every roadmap node's legs when it is first reset on a roadmap (kept for the process): the longest reset
-  of the fast MCTS is printed with its times;
+  machine. The fast planners' numba kernels are compiled (or loaded from numba's cache on disk) when such
+  a planner is first reset (never inside a decision); the first line says how long that took.
+  ``mcts:search=lowrank`` lays out every roadmap node's legs when it is first reset on a roadmap (kept for
+  the process): the longest reset of the fast MCTS is printed with its times;
 - ``--agreement N``: N decision states of real episodes (the reference flying, fixed seeds, split
   over the v1 and v2 tasks of ``--agreement-tasks``), both searches from each with the same random
   state: the share of identical moves, and for each other one why the two trees parted (the first
@@ -55,8 +55,8 @@ def _compile_kernels() -> str:
     from ipp_bench.planners import _search_kernels
 
     _search_kernels.warm_up()
-    return (f"numba kernels compiled in {time.perf_counter() - t0:.1f} s (once per process, when a fast planner is "
-            "first reset; in no decision's time)")
+    return (f"numba kernels ready in {time.perf_counter() - t0:.1f} s (compiled, or loaded from numba's cache, when "
+            "a fast planner is first reset; in no decision's time)")
 
 
 def _load() -> str:

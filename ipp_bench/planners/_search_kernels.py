@@ -1,4 +1,4 @@
-"""Compiled kernels of the look-ahead planners' fast searches (numba; nothing cached on disk).
+"""Compiled kernels of the look-ahead planners' fast searches (numba, cached on disk as Python caches bytecode).
 
 - both: :func:`camera_rows` turns read-out positions (:func:`leg_points`) into the camera's sparse rows
   and :func:`fold_repeated_rows` folds a footprint looked at twice into one row; :func:`roi_product` is
@@ -15,9 +15,12 @@ They compute the references' quantities in exact arithmetic (the Kalman update's
 regrouped; floating point reordered, nothing approximated) and are deterministic: no fast-math, a fixed
 loop order, one thread, BLAS only through ``np.dot`` (on one thread, ``ipp_bench._threads``).
 
-A process compiles them once, when a planner that uses them is first reset (:func:`warm_up`: 10-30 s,
-outside any decision), and writes no cache file (nothing compiled is loaded from disk; a read-only
-install works).
+They are compiled once, when a planner that uses them is first reset (:func:`warm_up`: 10-35 s, outside
+any decision), and numba caches the machine code: in ``__pycache__`` beside this file where it may write
+there, else in its user-wide cache (``NUMBA_CACHE_DIR``, by default under ``~/.cache``), so a later process
+loads it in about a second. The cache is keyed on this file (it is compiled again after any change to it:
+the kernels call nothing outside it) and on the CPU's name and features (another CPU compiles its own).
+Where neither place can be written, every process compiles them again and nothing is cached.
 """
 
 from __future__ import annotations
@@ -42,7 +45,12 @@ def require_numba(what: str) -> None:
 
 
 def _jit(fn):
-    return fn if numba is None else numba.njit(cache=False, fastmath=False, nogil=True)(fn)
+    if numba is None:
+        return fn
+    try:
+        return numba.njit(cache=True, fastmath=False, nogil=True)(fn)
+    except RuntimeError:  # no place numba may write its cache (a read-only install and home): compile per process
+        return numba.njit(cache=False, fastmath=False, nogil=True)(fn)
 
 
 @_jit
@@ -516,35 +524,63 @@ def _append_edge(eLi, eG, ej, em, erows, ecells, ew, eints, UV, header, idata, f
 
 
 @_jit
-def _pairwise_sum(a, lo, n):
-    """NumPy's pairwise summation of ``a[lo:lo + n]`` (what ``a.sum()`` adds, in its order)."""
+def _pairwise_block(a, lo, n):
+    """NumPy's sum of a block of at most 128 terms ``a[lo:lo + n]`` (eight running sums, then the rest)."""
     if n < 8:
         res = -0.0
         for i in range(n):
             res += a[lo + i]
         return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@_jit
+def _pairwise_sum(a, lo, n):
+    """NumPy's pairwise summation of ``a[lo:lo + n]`` (what ``a.sum()`` adds, in its order): blocks of at most
+    128 terms, halves (at a multiple of 8) added as NumPy's recursion adds them, with an explicit stack (numba
+    cannot load a recursive function from its cache)."""
     if n <= 128:
-        r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-        r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-        i = 8
-        while i < n - n % 8:
-            r0 += a[lo + i]
-            r1 += a[lo + i + 1]
-            r2 += a[lo + i + 2]
-            r3 += a[lo + i + 3]
-            r4 += a[lo + i + 4]
-            r5 += a[lo + i + 5]
-            r6 += a[lo + i + 6]
-            r7 += a[lo + i + 7]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += a[lo + i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise_sum(a, lo, n2) + _pairwise_sum(a, lo + n2, n - n2)
+        return _pairwise_block(a, lo, n)
+    # work items (start, length): length > 0 sums that span, length 0 adds the two values on top of the stack
+    work_lo = np.empty(256, dtype=np.int64)
+    work_n = np.empty(256, dtype=np.int64)
+    values = np.empty(128)
+    w, v = 1, 0
+    work_lo[0], work_n[0] = lo, n
+    while w > 0:
+        w -= 1
+        start, length = work_lo[w], work_n[w]
+        if length == 0:  # left + right, as the recursion returns them
+            v -= 1
+            values[v - 1] = values[v - 1] + values[v]
+        elif length <= 128:
+            values[v] = _pairwise_block(a, start, length)
+            v += 1
+        else:
+            half = length // 2
+            half -= half % 8
+            work_lo[w], work_n[w] = 0, 0  # after both halves: their sum
+            work_lo[w + 1], work_n[w + 1] = start + half, length - half  # the right half, summed second
+            work_lo[w + 2], work_n[w + 2] = start, half  # the left half, summed first
+            w += 3
+    return values[0]
 
 
 @_jit

@@ -63,8 +63,8 @@ still be broken the other way by rounding, and the two searches then grow differ
 ``benchmarks/bench_search.py`` times them and counts identical moves). ``search = "reference"`` runs
 the direct form (:mod:`ipp_bench.planners.mcts_reference`). A leg's read-outs come from the camera's
 compiled rows, a footprint looked at twice on one leg folded into one row with both looks' precision (the
-same posterior). The low-rank search needs numba (the ``eval`` extra); its kernels are compiled once per
-process, when the planner is first reset.
+same posterior). The low-rank search needs numba (the ``eval`` extra); its kernels are compiled when the
+planner is first reset, and numba caches them on disk (:mod:`~ipp_bench.planners._search_kernels`).
 """
 
 from __future__ import annotations

@@ -164,13 +164,31 @@ def test_a_search_laying_out_its_legs_as_it_goes_moves_alike():
     assert 0 < built < lazy._table.table.shape[0]  # the nodes the searches reached, no others
 
 
+def test_the_kernels_compile_where_numba_has_nowhere_to_write_its_cache():
+    """A read-only install with a read-only home: numba finds no cache locator and the kernels compile in
+    the process instead (no locator is simulated: as root every folder is writable)."""
+    import subprocess
+    import sys
+
+    code = ("import numba.core.caching as caching\n"
+            "caching.CacheImpl._locator_classes = []\n"
+            "import numpy as np\n"
+            "from ipp_bench.planners import _search_kernels as k\n"
+            "a = np.random.default_rng(0).random(300)\n"
+            "assert k._pairwise_sum(a, 0, a.size) == a.sum()\n"
+            "print(type(k._pairwise_sum._cache).__name__)\n")
+    env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("NUMBA_CACHE")}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert done.returncode == 0 and done.stdout.strip() == "NullCache", done.stderr
+
+
 def test_the_rollout_draws_as_numpy_does():
     """The compiled rollout's move: one ``rng.random()`` against the cumulative softmax of ``lambda * rate /
     max rate`` (NumPy's pairwise sum, in its order): the move and the draws of ``rng.choice(order, p=...)``."""
     rng = np.random.default_rng(2)
-    for n in list(range(1, 40)) + [130, 300]:
-        a = rng.random(n)
-        assert _search_kernels._pairwise_sum(a, 0, n) == a.sum()
+    for n in list(range(1, 40)) + [128, 129, 130, 255, 256, 300, 1000, 4099, 100_003]:
+        for a in (rng.random(n), rng.standard_normal(n) * 10.0 ** rng.integers(-8, 9, n)):  # the order shows
+            assert _search_kernels._pairwise_sum(a, 0, n) == a.sum()
     same = 0
     for t in range(400):
         k = int(rng.integers(2, 21))

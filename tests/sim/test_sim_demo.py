@@ -169,6 +169,31 @@ def test_a_video_that_cannot_be_finished_leaves_the_old_one(tmp_path, capsys, mo
     assert out.read_bytes() == OLD and _left_beside(tmp_path) == []
 
 
+def test_ctrl_c_right_after_the_first_frame_leaves_the_old_video(tmp_path, monkeypatch):
+    """Ctrl-C the moment ffmpeg has opened its temporary file (after the first frame, before the episode's
+    first step): the partial video is removed, the old one left."""
+    import time
+
+    from ipp_bench.sim import video
+
+    real = video.H264Writer.send
+
+    def first_frame_then_ctrl_c(self, frame):
+        real(self, frame)
+        deadline = time.monotonic() + 60
+        while not self.tmp.exists():  # ffmpeg opens its output once it has the first frame
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(video.H264Writer, "send", first_frame_then_ctrl_c)
+    out = tmp_path / "demo.mp4"
+    out.write_bytes(OLD)
+    with pytest.raises(KeyboardInterrupt):
+        run_demo(_args(*SHORT, "--out", str(out)))
+    assert out.read_bytes() == OLD and _left_beside(tmp_path) == []
+
+
 def _demo_process(out, *extra, preexec_fn=None):
     import subprocess
     import sys

@@ -84,8 +84,8 @@ def record(task: str, planner: str, seed: int, out: str, budget: float | None = 
                    bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s mission [{elapsed}<{remaining}]")
 
     def on_reset(e) -> None:
-        # held before anything else runs: a Ctrl-C from here on (the first frame renders for a while, and
-        # ffmpeg has already opened its temporary file) is cleaned up by the abort below
+        # held before its first frame is sent (ffmpeg opens its temporary file once it has it): a Ctrl-C from
+        # here on is cleaned up by the abort below
         video["v"] = v = DemoVideo(e, out, f"{planner} | {task.split('/')[-1]} | seed {seed}", size, fps, speedup,
                                    crf, hold_s, bar)
         team = is_team_env(e)  # a team's drones share one physics: its steps carry the hook

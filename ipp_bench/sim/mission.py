@@ -125,9 +125,6 @@ class MuJoCoPlatform:
 
         return on_step, state
 
-    def _inside(self, mission: Mission, p: np.ndarray) -> np.ndarray:
-        return inside_map(mission, p)
-
     def _read(self, time_s: float) -> Record:
         mission = self._mission
         obs, z = self.world.read_camera(mission.sensor, mission.rng, mission.truth)
@@ -166,7 +163,7 @@ class ContinuousFlight(MuJoCoPlatform):
             state["since"] = 0.0
             position = target
         else:  # out of budget on the way: the leg ends where the reference was
-            position = self._inside(mission, self.flight.ref_pos.copy())
+            position = inside_map(mission, self.flight.ref_pos)
         end_time = min(end, mission.budget_s)
         return LegOutcome(records, end_time, end_time - t0, state["flown"], position, state["since"])
 
@@ -189,7 +186,7 @@ class StopAndGoFlight(MuJoCoPlatform):
             records.append(self._read(end))
             state["since"] = 0.0
         end_time = min(end, mission.budget_s)
-        return LegOutcome(records, end_time, end_time - t0, state["flown"], self._inside(mission, self.flight.position),
+        return LegOutcome(records, end_time, end_time - t0, state["flown"], inside_map(mission, self.flight.position),
                           state["since"])
 
 

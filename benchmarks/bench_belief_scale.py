@@ -26,14 +26,14 @@ import time
 
 import numpy as np
 
-from ipp_bench import metrics as M
-from ipp_bench._threads import limit_blas_threads
-from ipp_bench.belief import GPBelief, LegBatch, trace_reductions
-from ipp_bench.belief_window import WindowBelief
-from ipp_bench.config import GridConfig
+from ipp_bench.core import metrics as M
+from ipp_bench.core._threads import limit_blas_threads
+from ipp_bench.core.belief import GPBelief, LegBatch, trace_reductions
+from ipp_bench.core.belief_window import WindowBelief
+from ipp_bench.core.config import GridConfig
+from ipp_bench.core.mission import Mission
+from ipp_bench.core.sensor import Sensor, stack
 from ipp_bench.envs import make_env, task_config
-from ipp_bench.mission import Mission
-from ipp_bench.sensor import Sensor, stack
 
 AGREEMENT_TASKS = ("ipp_bench/Grid30Eval-v1", "ipp_bench/Hotspots30Eval-v2")
 

@@ -31,16 +31,16 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np
 
-from ipp_bench._threads import limit_blas_threads
+from ipp_bench.core._threads import limit_blas_threads
 
 TASK = "ipp_bench/MuJoCoWeed15-v1"
 
 
 def main() -> None:
-    from ipp_bench.belief import GPBelief, normalised_innovation
+    from ipp_bench.core.belief import GPBelief, normalised_innovation
+    from ipp_bench.core.sensor import stack
     from ipp_bench.envs import make_env
     from ipp_bench.planners.episode import fly_episode
-    from ipp_bench.sensor import stack
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--planners", nargs="+", default=["random", "coverage", "greedy", "attention", "cmaes"])

@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
-from ipp_bench._threads import limit_blas_threads
+from ipp_bench.core._threads import limit_blas_threads
+from ipp_bench.core.limits import check_sizes
 from ipp_bench.envs import make_env, task_config
-from ipp_bench.limits import check_sizes
 from ipp_bench.planners import RobotView, make_planner
 
 

@@ -29,7 +29,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-from ipp_bench._threads import limit_blas_threads  # noqa: E402
+from ipp_bench.core._threads import limit_blas_threads  # noqa: E402
 
 TASK = "ipp_bench/MuJoCoWeed15-v1"
 

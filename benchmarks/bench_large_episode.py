@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from ipp_bench._threads import limit_blas_threads
+from ipp_bench.core._threads import limit_blas_threads
 
 
 def rss_mb() -> float:

@@ -14,7 +14,7 @@ import platform
 
 import numpy as np
 
-from ipp_bench._threads import limit_blas_threads
+from ipp_bench.core._threads import limit_blas_threads
 from ipp_bench.envs import tagged
 from ipp_bench.eval.runner import run_episode
 from ipp_bench.planners import is_team_planner, planner_names

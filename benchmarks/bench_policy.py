@@ -221,7 +221,7 @@ def main() -> int:
     except ValueError as e:
         p.error(str(e))
 
-    from ipp_bench._threads import limit_blas_threads
+    from ipp_bench.core._threads import limit_blas_threads
 
     limit_blas_threads()
     import torch

@@ -32,10 +32,10 @@ import numpy as np
 
 def child(size: int, method: str, task: str, compare: bool) -> None:
     """Measure one (size, solver) in this process; print one JSON line."""
-    from ipp_bench._threads import limit_blas_threads
+    from ipp_bench.core._threads import limit_blas_threads
+    from ipp_bench.core.limits import encoding_bytes
+    from ipp_bench.core.roadmap import DENSE_ENCODING_MAX_NODES, _balanced_knn, _sample_nodes, laplacian_encoding
     from ipp_bench.envs import task_config
-    from ipp_bench.limits import encoding_bytes
-    from ipp_bench.roadmap import DENSE_ENCODING_MAX_NODES, _balanced_knn, _sample_nodes, laplacian_encoding
 
     limit_blas_threads()
     config = task_config(task).replace(rows=size, cols=size)
@@ -58,7 +58,7 @@ def child(size: int, method: str, task: str, compare: bool) -> None:
     if compare:
         from scipy.linalg import subspace_angles
 
-        from ipp_bench.roadmap import sparse_laplacian
+        from ipp_bench.core.roadmap import sparse_laplacian
 
         sparse = laplacian_encoding(neighbours, config.graph.pe_dim, method="sparse").astype(np.float64)
         dense = pe.astype(np.float64)
@@ -96,8 +96,8 @@ def main() -> None:
           "estimate [MB] | sparse vs dense: angle / eigenvalue / entry |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for size in args.sizes:
+        from ipp_bench.core.limits import roadmap_nodes
         from ipp_bench.envs import task_config
-        from ipp_bench.limits import roadmap_nodes
 
         nodes = roadmap_nodes(task_config(args.task).replace(rows=size, cols=size))
         methods = ["dense", "sparse"] if nodes <= args.dense_max_nodes else ["sparse"]

@@ -26,7 +26,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-from ipp_bench._threads import limit_blas_threads  # noqa: E402
+from ipp_bench.core._threads import limit_blas_threads  # noqa: E402
 
 TASK = "ipp_bench/MuJoCoWeed15-v1"
 LEGS = [(28.0, 8.0, 8.0), (28.0, 28.0, 8.0), (8.0, 28.0, 8.0), (8.0, 8.0, 8.0), (8.0, 8.0, 14.0),

@@ -330,7 +330,7 @@ def main() -> int:
         if getattr(args, name) < 0 or (name == "decisions" and args.decisions < 1):
             low = 1 if name == "decisions" else 0
             p.error(f"--{name} = {getattr(args, name)} is invalid: expected an integer >= {low}")
-    from ipp_bench._threads import limit_blas_threads
+    from ipp_bench.core._threads import limit_blas_threads
 
     limit_blas_threads()
     print(f"python {platform.python_version()}, numpy {np.__version__}, {platform.processor() or platform.machine()}, "

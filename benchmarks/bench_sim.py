@@ -31,10 +31,10 @@ import numpy as np  # noqa: E402
 from timing import per_frame  # noqa: E402  (benchmarks/timing.py)
 
 import ipp_bench.envs as envs  # noqa: E402
-from ipp_bench._threads import limit_blas_threads  # noqa: E402
-from ipp_bench.config import GridConfig, SensorConfig  # noqa: E402
-from ipp_bench.fields import make_field  # noqa: E402
-from ipp_bench.sensor import Sensor  # noqa: E402
+from ipp_bench.core._threads import limit_blas_threads  # noqa: E402
+from ipp_bench.core.config import GridConfig, SensorConfig  # noqa: E402
+from ipp_bench.core.fields import make_field  # noqa: E402
+from ipp_bench.core.sensor import Sensor  # noqa: E402
 from ipp_bench.sim.controller import ContinuousLeg  # noqa: E402
 from ipp_bench.sim.gl import mujoco  # noqa: E402
 from ipp_bench.sim.world import SimConfig, WeedWorld  # noqa: E402

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from ipp_bench._threads import limit_blas_threads
+from ipp_bench.core._threads import limit_blas_threads
 from ipp_bench.envs import make_env
 from ipp_bench.planners.episode import fly_episode
 

@@ -32,9 +32,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 from timing import per_frame  # noqa: E402  (benchmarks/timing.py)
 
-from ipp_bench._threads import limit_blas_threads  # noqa: E402
-from ipp_bench.config import GridConfig, SensorConfig  # noqa: E402
-from ipp_bench.fields import make_field  # noqa: E402
+from ipp_bench.core._threads import limit_blas_threads  # noqa: E402
+from ipp_bench.core.config import GridConfig, SensorConfig  # noqa: E402
+from ipp_bench.core.fields import make_field  # noqa: E402
 from ipp_bench.sim.camera import form_image  # noqa: E402
 from ipp_bench.sim.gl import mujoco  # noqa: E402
 from ipp_bench.sim.render import SceneRenderer  # noqa: E402

@@ -170,7 +170,7 @@ def cmd_tasks(args: argparse.Namespace) -> int:
 
 
 def cmd_fit_prior(args: argparse.Namespace) -> int:
-    from . import gp_fit
+    from .core import gp_fit
     from .envs import task_spec
 
     maps = gp_fit.DEFAULT_MAPS if args.maps is None else args.maps
@@ -183,7 +183,7 @@ def cmd_fit_prior(args: argparse.Namespace) -> int:
             raise ValueError(f"--seed = {seed} is invalid: expected an integer >= 0")
         if args.write and not os.access(spec.source, os.W_OK):
             raise ValueError(f"--write: the task file {spec.source} is not writable")
-        from .limits import check_fit_size
+        from .core.limits import check_fit_size
 
         check_fit_size(spec.config, maps)  # before any map is drawn (128 x 128: 10 GiB)
     except ValueError as err:
@@ -247,7 +247,7 @@ class _EpisodeProgress:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from .data import OutputWriteError, check_output_file
+    from .core.data import OutputWriteError, check_output_file
     from .envs import parse_overrides, resolve_task, task_config, task_spec
     from .eval.plan import canonical_spec
     from .planners import make_planner
@@ -407,7 +407,7 @@ def cmd_power(args: argparse.Namespace) -> int:
 
 
 def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
-    from .data import OutputWriteError, check_output_dir
+    from .core.data import OutputWriteError, check_output_dir
     from .envs import parse_overrides
     from .eval.against import against_plan
     from .eval.executors import ExecutorError, check_executor_args, default_backend

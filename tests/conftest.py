@@ -5,7 +5,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np
 import pytest
 
-from ipp_bench._threads import limit_blas_threads
+from ipp_bench.core._threads import limit_blas_threads
 
 limit_blas_threads()
 

@@ -455,8 +455,8 @@ def test_a_size_beyond_its_bound_is_one_line_before_any_work(extra, message, cap
 
 
 def test_the_size_limits_hold_every_task_of_the_suite():
+    from ipp_bench.core.limits import check_sizes
     from ipp_bench.envs import TASKS
-    from ipp_bench.limits import check_sizes
 
     for spec in TASKS.values():
         check_sizes(spec.config)
@@ -471,7 +471,7 @@ def test_a_dense_belief_too_large_is_one_line_before_any_allocation():
     """128 x 128: the roadmap and encoding fit, the dense belief does not; said before allocating."""
     import tracemalloc
 
-    from ipp_bench.limits import ARRAY_LIMIT_BYTES, check_sizes, dense_belief_bytes, encoding_bytes
+    from ipp_bench.core.limits import ARRAY_LIMIT_BYTES, check_sizes, dense_belief_bytes, encoding_bytes
 
     config = ipp_bench.envs.task_config(TASK)
     big = config.replace(rows=128, cols=128)
@@ -485,13 +485,13 @@ def test_a_dense_belief_too_large_is_one_line_before_any_allocation():
     assert str(err.value) == (
         "grid.rows x grid.cols = 128 x 128 cells is too large for the dense belief: its covariance of 16384 states "
         "needs 2 GiB, 10 GiB while its prior is built (limit 2 GiB, at most 7327 states); a map this large needs "
-        "the scalable belief ipp_bench.belief_window.WindowBelief: set gp.belief = 'window' (--env belief=window)")
+        "the scalable belief ipp_bench.core.belief_window.WindowBelief: set gp.belief = 'window' (--env belief=window)")
     check_sizes(config.replace(rows=85, cols=85))
     check_sizes(big.replace(belief="window"))  # the window belief's estimate instead: ~0.1 GiB
 
 
 def test_an_encoding_too_large_is_one_line_naming_its_memory_and_limit():
-    from ipp_bench.limits import check_sizes
+    from ipp_bench.core.limits import check_sizes
 
     config = ipp_bench.envs.task_config(TASK)
     with pytest.raises(ValueError) as err:
@@ -559,7 +559,7 @@ def test_progress_lines_print_reductions_as_the_report_does(capsys, tmp_path):
 def test_a_file_written_atomically_is_complete_or_untouched(tmp_path):
     import errno
 
-    from ipp_bench.data import OutputWriteError, write_atomically
+    from ipp_bench.core.data import OutputWriteError, write_atomically
 
     path = tmp_path / "plot.png"
     path.write_bytes(b"old")

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ipp_bench.belief import GPBelief, cell_centres, matern32
+from ipp_bench.core.belief import GPBelief, cell_centres, matern32
 
 
 def batch_posterior(mean0, K, H, z, R):
@@ -115,7 +115,7 @@ def test_bad_shapes_raise_clear_errors():
 
 
 def test_covariance_stays_symmetric_psd_over_many_updates():
-    from ipp_bench.belief import RESYMMETRISE_EVERY
+    from ipp_bench.core.belief import RESYMMETRISE_EVERY
 
     rng = np.random.default_rng(11)
     b = GPBelief.from_grid((8, 8))
@@ -127,7 +127,7 @@ def test_covariance_stays_symmetric_psd_over_many_updates():
 
 
 def test_batched_trace_reductions_match_one_by_one():
-    from ipp_bench.belief import LegBatch, gain_factor, trace_reductions
+    from ipp_bench.core.belief import LegBatch, gain_factor, trace_reductions
 
     rng = np.random.default_rng(5)
     b = GPBelief.from_grid((6, 6))
@@ -150,8 +150,8 @@ def test_batched_trace_reductions_match_one_by_one():
 # -- the camera's persistent error as states (PersistentErrorBelief) ---------------------------------
 
 def _camera_model(floor=0.3, corr=0.7, neighbour=0.0):
-    from ipp_bench.config import GridConfig, SensorConfig
-    from ipp_bench.sensor import Sensor
+    from ipp_bench.core.config import GridConfig, SensorConfig
+    from ipp_bench.core.sensor import Sensor
 
     grid = GridConfig(6, 7, 2.5)
     cfg = SensorConfig(noise_a=0.004, noise_b=0.1, binning_altitude=10.0, binning=2, binning_noise_exponent=-1.0,
@@ -171,7 +171,7 @@ def test_persistent_error_states_equal_the_batch_posterior(seed, neighbour):
     """Sequential augmented updates = the batch GP posterior of the field under the marginal
     covariance of z = H x + E e + v, built here from the model's definition (not from the code):
     e_f,c = sqrt(s_f phi(t_c)) u_f,c, corr(u_f,c, u_g,c') = r^(d_cc'^2) (rho if f != g)."""
-    from ipp_bench.belief import PersistentErrorBelief
+    from ipp_bench.core.belief import PersistentErrorBelief
 
     rng = np.random.default_rng(seed)
     grid, cfg, sensor = _camera_model(neighbour=neighbour)
@@ -217,9 +217,9 @@ def test_persistent_error_states_equal_the_batch_posterior(seed, neighbour):
 
 
 def test_without_persistent_error_the_camera_model_is_the_plain_update():
-    from ipp_bench.belief import PersistentErrorBelief
-    from ipp_bench.config import GridConfig, SensorConfig
-    from ipp_bench.sensor import Sensor, stack
+    from ipp_bench.core.belief import PersistentErrorBelief
+    from ipp_bench.core.config import GridConfig, SensorConfig
+    from ipp_bench.core.sensor import Sensor, stack
 
     grid = GridConfig(6, 7, 2.5)
     sensor = Sensor(grid, SensorConfig(noise_a=0.004, noise_b=0.1))
@@ -242,8 +242,8 @@ def test_nis_is_chi_square_with_the_error_states_and_not_without():
     falls below it: the test can fail."""
     from scipy.stats import chi2
 
-    from ipp_bench.belief import PersistentErrorBelief, normalised_innovation
-    from ipp_bench.sensor import stack
+    from ipp_bench.core.belief import PersistentErrorBelief, normalised_innovation
+    from ipp_bench.core.sensor import stack
 
     grid, cfg, sensor = _camera_model(floor=1.0, corr=0.7)
     rng = np.random.default_rng(7)
@@ -282,8 +282,8 @@ def test_nis_is_chi_square_when_neighbouring_cells_share_their_error_and_not_if_
     errors as independent (r = 0) sees binned read-outs disagree more than it predicts, above it."""
     from scipy.stats import chi2
 
-    from ipp_bench.belief import PersistentErrorBelief
-    from ipp_bench.sensor import persistent_correlation
+    from ipp_bench.core.belief import PersistentErrorBelief
+    from ipp_bench.core.sensor import persistent_correlation
 
     r = 0.59
     grid, cfg, sensor = _camera_model(floor=1.0, corr=0.7, neighbour=r)
@@ -322,9 +322,9 @@ def test_nis_is_chi_square_when_neighbouring_cells_share_their_error_and_not_if_
 def test_predicted_belief_is_the_covariance_after_the_read_outs_without_forming_it():
     """PredictedBelief = a copy updated with the read-outs (any values): covariance, rows, variances
     and the legs' trace reductions; the mean stays today's."""
-    from ipp_bench.belief import LegBatch, PredictedBelief
-    from ipp_bench.config import GridConfig, SensorConfig
-    from ipp_bench.sensor import Sensor, stack
+    from ipp_bench.core.belief import LegBatch, PredictedBelief
+    from ipp_bench.core.config import GridConfig, SensorConfig
+    from ipp_bench.core.sensor import Sensor, stack
 
     belief = GPBelief.from_grid((12, 12), 2.5, 6.0, 0.05, 0.1, 0.001)
     sensor = Sensor(GridConfig(rows=12, cols=12, resolution=2.5), SensorConfig())

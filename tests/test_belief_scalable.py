@@ -5,10 +5,10 @@ stated tolerances after a whole flight on 30 x 30 with the v1 and v2 priors."""
 import numpy as np
 import pytest
 
-from ipp_bench.belief import GPBelief, LegBatch, trace_reductions
-from ipp_bench.belief_window import WindowBelief, window_for
-from ipp_bench.config import GridConfig, SensorConfig
-from ipp_bench.sensor import Sensor, stack
+from ipp_bench.core.belief import GPBelief, LegBatch, trace_reductions
+from ipp_bench.core.belief_window import WindowBelief, window_for
+from ipp_bench.core.config import GridConfig, SensorConfig
+from ipp_bench.core.sensor import Sensor, stack
 
 # (length_scale [m], signal_variance, nugget, prior_mean) of tasks/grid30_eval_v1.toml and hotspots30_eval_v2.toml
 PRIORS = {"v1": (8.162, 0.0804, 0.001959, 0.5), "v2": (6.931, 0.01789, 0.0006774, 0.03697)}
@@ -211,8 +211,8 @@ def test_bad_input_is_one_clear_value_error(bad, match):
 def test_a_mission_runs_on_the_window_belief():
     """The mission's interface (``update_local`` through its belief model, ``mean``, ``variance``):
     the same flight with the same noise gives the dense belief's report within the tolerances."""
+    from ipp_bench.core.mission import Mission
     from ipp_bench.envs import task_config
-    from ipp_bench.mission import Mission
 
     cfg = task_config("ipp_bench/Hotspots30Eval-v2")
     g, gp = cfg.grid, cfg.gp

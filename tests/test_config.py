@@ -4,7 +4,7 @@ import dataclasses
 
 import pytest
 
-from ipp_bench.config import GPConfig, GraphConfig, GridConfig, IPPConfig, MissionConfig, SensorConfig
+from ipp_bench.core.config import GPConfig, GraphConfig, GridConfig, IPPConfig, MissionConfig, SensorConfig
 
 BAD = [
     (GridConfig, "rows", 1), (GridConfig, "rows", 2.5), (GridConfig, "cols", 0),
@@ -110,8 +110,8 @@ def test_the_corners_of_the_numerical_range_give_finite_metrics():
     """Every update stays well conditioned and every metric finite at the range's corners (with the
     lowest altitude's noise, the smallest there is, against the largest prior variance)."""
     np = pytest.importorskip("numpy")
-    from ipp_bench.config import LENGTH_SCALE_RANGE, NOISE_B_RANGE, NUGGET_RANGE, PRIOR_MEAN_RANGE, VARIANCE_RANGE
-    from ipp_bench.mission import Mission, cell_to_xyz
+    from ipp_bench.core.config import LENGTH_SCALE_RANGE, NOISE_B_RANGE, NUGGET_RANGE, PRIOR_MEAN_RANGE, VARIANCE_RANGE
+    from ipp_bench.core.mission import Mission, cell_to_xyz
 
     truth = np.random.default_rng(0).random((15, 15))
     corners = [dict(length_scale=ls, signal_variance=VARIANCE_RANGE[1], noise_a=VARIANCE_RANGE[0],

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from ipp_bench.config import FIELD_GUARANTEED_MAX, GridConfig
-from ipp_bench.fields import FIELDS, make_field
+from ipp_bench.core.config import FIELD_GUARANTEED_MAX, GridConfig
+from ipp_bench.core.fields import FIELDS, make_field
 
 
 @pytest.mark.parametrize("name", sorted(FIELDS))

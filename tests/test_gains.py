@@ -1,4 +1,4 @@
-"""ipp_bench.gains against the maths it implements: the look-gain feature against the Kalman update where
+"""ipp_bench.core.gains against the maths it implements: the look-gain feature against the Kalman update where
 its assumption holds (white noise and the camera-error states), the batched look gains against the dense
 Kalman update, and the far targets against Dijkstra's quickest paths on the mission's leg durations."""
 
@@ -6,10 +6,19 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import dijkstra
 
-from ipp_bench import metrics as M
-from ipp_bench.belief import GPBelief
+from ipp_bench.core import metrics as M
+from ipp_bench.core.belief import GPBelief
+from ipp_bench.core.gains import (
+    _GRAPHS,
+    LookBatch,
+    LookGain,
+    beats,
+    best_far_target,
+    duration_graph,
+    far_move,
+    first_best,
+)
 from ipp_bench.envs import make_env
-from ipp_bench.gains import _GRAPHS, LookBatch, LookGain, beats, best_far_target, duration_graph, far_move, first_best
 from ipp_bench.planners import make_planner, view_for
 from ipp_bench.planners.base import RobotView
 
@@ -55,7 +64,7 @@ def _error_belief(env, neighbour_corr: float = 0.0):
     (``neighbour_corr`` for the persistent errors' spatial correlation), after a few 8 m looks."""
     import dataclasses
 
-    from ipp_bench.belief import PersistentErrorBelief
+    from ipp_bench.core.belief import PersistentErrorBelief
 
     rng = np.random.default_rng(4)
     n = env.config.grid.n_cells
@@ -73,7 +82,7 @@ def test_camera_error_look_gain_is_the_augmented_kalman_formula_for_single_cell_
     independent cells' errors, an 8 m read-out's rows are single cells: the feature equals the exact
     reduction of the batch formula on the augmented state [x, u_1, u_2] (the white noise at the
     predicted value's scale), and the white-noise formula overstates it where cells were seen before."""
-    from ipp_bench.belief import value_scale
+    from ipp_bench.core.belief import value_scale
 
     env = make_env("ipp_bench/Weed15Twin-v1")
     env.reset(seed=0)
@@ -129,8 +138,8 @@ def test_tasks_that_share_a_roadmap_keep_their_own_cameras_feature():
 def test_a_look_batch_is_the_kalman_trace_reduction_of_each_look_alone():
     """Looks spread over the map, each on its own cells: each one's ROI trace reduction is that of the
     dense Kalman update P+ = P - P H^T S^-1 H P, and the batch agrees with the union-of-cells batch formula."""
-    from ipp_bench.belief import LegBatch, trace_reductions
-    from ipp_bench.sensor import stack
+    from ipp_bench.core.belief import LegBatch, trace_reductions
+    from ipp_bench.core.sensor import stack
 
     env, _, _ = _stepped(HOT, 3, 5)
     P = env.mission.belief.cov

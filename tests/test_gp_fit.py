@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from ipp_bench import gp_fit
-from ipp_bench.belief import GPBelief, cell_centres, prior_covariance
-from ipp_bench.config import IPPConfig
+from ipp_bench.core import gp_fit
+from ipp_bench.core.belief import GPBelief, cell_centres, prior_covariance
+from ipp_bench.core.config import IPPConfig
 from ipp_bench.envs import task_spec
 
 
@@ -122,7 +122,7 @@ def test_a_fit_too_large_for_memory_is_refused_before_any_map_is_drawn():
     the estimate checked against the measured peak on a map that fits."""
     import tracemalloc
 
-    from ipp_bench.limits import FIT_ARRAYS, fit_prior_bytes
+    from ipp_bench.core.limits import FIT_ARRAYS, fit_prior_bytes
 
     big = task_spec("ipp_bench/Hotspots128Eval-v2").config
     tracemalloc.start()

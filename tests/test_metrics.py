@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ipp_bench import metrics as M
+from ipp_bench.core import metrics as M
 
 
 def test_metrics_on_hand_built_case():

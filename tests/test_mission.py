@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from ipp_bench.config import IPPConfig
-from ipp_bench.mission import BudgetExceededError, Mission, cell_to_xyz
+from ipp_bench.core.config import IPPConfig
+from ipp_bench.core.mission import BudgetExceededError, Mission, cell_to_xyz
 
 
 def make(budget=100.0, **kw):
@@ -145,8 +145,8 @@ def test_fly_to_refuses_exactly_what_affordable_refuses():
 def test_one_update_signature_for_both_belief_models_and_hooks_see_every_batch():
     """The mission never asks which belief it has: white noise or the camera-error states, one
     ``update(observations, values)``; the field belief it exposes is updated in place."""
-    from ipp_bench.belief import GPBelief, PersistentErrorBelief, WhiteNoiseBelief, normalised_innovation
-    from ipp_bench.sensor import stack
+    from ipp_bench.core.belief import GPBelief, PersistentErrorBelief, WhiteNoiseBelief, normalised_innovation
+    from ipp_bench.core.sensor import stack
 
     for states, cls in ((False, WhiteNoiseBelief), (True, PersistentErrorBelief)):
         kw = dict(persistent_var=0.004, persistent_var_binned=0.008, persistent_corr=0.5) if states else {}
@@ -174,7 +174,7 @@ def test_one_update_signature_for_both_belief_models_and_hooks_see_every_batch()
 
 
 def test_the_graph_platform_is_straight_legs_at_the_mission_speed():
-    from ipp_bench.mission import StraightLegs
+    from ipp_bench.core.mission import StraightLegs
 
     m = make()
     assert isinstance(m.platform, StraightLegs)

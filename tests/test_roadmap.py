@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from ipp_bench.config import GraphConfig, GridConfig
-from ipp_bench.roadmap import Roadmap, laplacian_encoding
+from ipp_bench.core.config import GraphConfig, GridConfig
+from ipp_bench.core.roadmap import Roadmap, laplacian_encoding
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +111,7 @@ def _assert_same_eigenspace(neighbours, sparse, dim, tol=1e-6, signs=True):
     """
     from scipy.linalg import subspace_angles
 
-    from ipp_bench.roadmap import sparse_laplacian
+    from ipp_bench.core.roadmap import sparse_laplacian
 
     L = sparse_laplacian(neighbours)
     dense = laplacian_encoding(neighbours, dim + 4, method="dense").astype(np.float64)
@@ -133,8 +133,8 @@ def _assert_same_eigenspace(neighbours, sparse, dim, tol=1e-6, signs=True):
 def test_every_task_keeps_its_dense_encoding_bit_for_bit():
     """Every registered task (15 x 15 to 30 x 30, at most 1 800 nodes) gets the dense encoding; the
     large tasks (tag ``large``, 128 x 128) are above the dense limit."""
+    from ipp_bench.core.roadmap import DENSE_ENCODING_MAX_NODES
     from ipp_bench.envs import TASKS
-    from ipp_bench.roadmap import DENSE_ENCODING_MAX_NODES
 
     sizes = set()
     for spec in TASKS.values():
@@ -191,7 +191,7 @@ def test_laplacian_encoding_refuses_an_unknown_method():
 @pytest.mark.slow
 def test_roadmap_and_encoding_of_128_by_128_cells():
     """The 128 x 128 size: 32 768 nodes, the k / n_levels rule kept, sparse eigenvectors with the fixed sign."""
-    from ipp_bench.roadmap import sparse_laplacian
+    from ipp_bench.core.roadmap import sparse_laplacian
 
     rm = Roadmap.build(GridConfig(128, 128, 2.5), GraphConfig(), 2.0)
     assert rm.n_nodes == 32768 and rm.pos_encoding.shape == (32768, 32)

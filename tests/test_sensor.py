@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from ipp_bench.config import GridConfig, SensorConfig
-from ipp_bench.sensor import Sensor, stack
+from ipp_bench.core.config import GridConfig, SensorConfig
+from ipp_bench.core.sensor import Sensor, stack
 
 
 @pytest.fixture

@@ -6,9 +6,9 @@ import warnings
 import numpy as np
 import pytest
 
-from ipp_bench.belief import GPBelief
-from ipp_bench.envs.registry import TASKS, TEAM_ENTRY_POINT, make_env, tagged
-from ipp_bench.team import TeamConfig
+from ipp_bench.core.belief import GPBelief
+from ipp_bench.core.team import TeamConfig
+from ipp_bench.envs.registry import TASKS, make_env, tagged
 
 TEAM2 = "ipp_bench/Hotspots30Team2Eval-v2"
 
@@ -156,7 +156,8 @@ def test_uavs_never_share_a_node_and_every_uav_flies_its_own_budget():
 
 
 def test_team_tasks_are_data_tagged_team_with_train_and_eval_seeds():
-    teams = [t for t in tagged("team") if TASKS[t].entry_point == TEAM_ENTRY_POINT]  # the roadmap's teams
+    roadmap = "ipp_bench.envs.team:TeamGraphEnv"
+    teams = [t for t in tagged("team") if TASKS[t].entry_point == roadmap]  # the roadmap's teams
     assert {"ipp_bench/Hotspots30Team2Eval-v2", "ipp_bench/Hotspots30Team4Eval-v2",
             "ipp_bench/Hotspots30Team2Train-v2", "ipp_bench/Hotspots30Team4Train-v2"} <= set(teams)
     single = TASKS["ipp_bench/Hotspots30Eval-v2"].config
@@ -193,9 +194,17 @@ def test_a_task_file_with_a_team_table_is_checked_and_needs_the_team_env(tmp_pat
     bad.write_text(text.replace("size = 2", "size = 3"))
     with pytest.raises(TaskFileError, match="team.starts = .* is invalid: expected 3 positions"):
         load_task_file(bad)
-    bad.write_text(text.replace("ipp_bench.envs.team:TeamGraphEnv", "ipp_bench.envs.graph:GraphIPPEnv"))
-    with pytest.raises(TaskFileError, match="a \\[team\\] table needs entry_point"):
-        load_task_file(bad)
+    bad.write_text(text.replace("ipp_bench.envs.team:TeamGraphEnv", "ipp_bench.envs.graph:GraphIPPEnv")
+                   .replace("Team2Eval", "Team2Bad"))
+    from ipp_bench.envs.registry import load_task
+
+    with pytest.raises(ValueError, match="a \\[team\\] table needs a team environment as its entry_point"):
+        make_env(load_task(bad))
+    single = tmp_path / "single.toml"
+    head, _, rest = text.replace("Team2Eval", "Team2NoTable").partition("[team]")
+    single.write_text(head + rest[rest.index("[config"):])
+    with pytest.raises(ValueError, match="is a team environment: a team task needs a \\[team\\] table"):
+        make_env(load_task(single))
 
 
 def test_a_team_renders_every_uavs_path(tmp_path):

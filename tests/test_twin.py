@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 import ipp_bench.envs  # noqa: F401
-from ipp_bench.belief import value_scale
-from ipp_bench.legs import continuous_durations
-from ipp_bench.mission import Mission, cell_to_xyz
-from ipp_bench.twin import CameraErrorLegs
+from ipp_bench.core.belief import value_scale
+from ipp_bench.core.legs import continuous_durations
+from ipp_bench.core.mission import Mission, cell_to_xyz
+from ipp_bench.core.twin import CameraErrorLegs
 
 TASK = "ipp_bench/Weed15Twin-v1"
 

@@ -9,14 +9,14 @@ import numpy as np
 from gymnasium import spaces
 from scipy import sparse
 
-from .. import metrics as M
-from .._threads import limit_blas_threads
-from ..config import IPPConfig, invalid
-from ..fields import make_field
-from ..limits import check_sizes
-from ..mission import Mission, cell_to_xyz
-from ..roadmap import Roadmap
-from ..sensor import Sensor
+from ..core import metrics as M
+from ..core._threads import limit_blas_threads
+from ..core.config import IPPConfig, invalid
+from ..core.fields import make_field
+from ..core.limits import check_sizes
+from ..core.mission import Mission, cell_to_xyz
+from ..core.roadmap import Roadmap
+from ..core.sensor import Sensor
 from .panels import render_mission
 
 
@@ -56,11 +56,11 @@ class GraphIPPEnv(gym.Env):
     ``ValueError`` naming ``budget_s`` when the budget pays for no move from the start.
 
     ## Arguments
-    ``gym.make(task_id, **overrides)``: any field of :class:`ipp_bench.config.IPPConfig` by name
+    ``gym.make(task_id, **overrides)``: any field of :class:`ipp_bench.core.config.IPPConfig` by name
     (``budget_s=200``, ``rows=20``, ``field="regions"``, ...), or ``config=IPPConfig(...)``;
     ``render_mode="rgb_array"`` (the only mode; another one is refused, naming it). Constructing an
     environment limits numpy/scipy BLAS to one
-    thread per process (``IPP_BENCH_BLAS_THREADS`` overrides; see ``ipp_bench._threads``).
+    thread per process (``IPP_BENCH_BLAS_THREADS`` overrides; see ``ipp_bench.core._threads``).
 
     ## Version History
     - v1 (benchmark v1): GP prior fitted to the field family (``ipp-bench fit-prior``), the
@@ -79,7 +79,7 @@ class GraphIPPEnv(gym.Env):
         elif isinstance(config, dict):
             config = IPPConfig.from_dict(config)
         elif not isinstance(config, IPPConfig):
-            invalid("config", config, "an ipp_bench.config.IPPConfig, a dict of its sections or None "
+            invalid("config", config, "an ipp_bench.core.config.IPPConfig, a dict of its sections or None "
                                       "(or set fields by name: gym.make(task, budget_s=100))")
         if overrides:
             config = config.replace(**overrides)

@@ -1,11 +1,13 @@
 """Benchmark tasks: one TOML file per task in ``tasks/``, registered with gymnasium.
 
 A task file holds its id (``ipp_bench/<Name>-v<N>``), entry point, tags and the sections of an
-:class:`~ipp_bench.config.IPPConfig`. The entry point names a class of this package
-(``ipp_bench.<module>:<Class>``, :data:`SUITE_ENTRY_POINTS`); nothing else is ever imported, and
-the class only when an env is made, after the whole file was checked. Registration is idempotent;
-``tagged("benchmark")`` is the
-set the leaderboard runs (dm_control's habit of deriving benchmark sets from tags).
+:class:`~ipp_bench.core.config.IPPConfig`. The entry point names a class of this package
+(``ipp_bench.<module>:<Class>``); nothing else is ever imported, and the class only when an env is
+made, after the whole file was checked. The MuJoCo tasks are such files too: their class lives in
+:mod:`ipp_bench.sim`, a layer above this one, named by the task file (data), never by this module.
+A file with a ``[team]`` table is a team task (a PettingZoo env, :func:`make_env`). Registration is
+idempotent; ``tagged("benchmark")`` is the set the leaderboard runs (dm_control's habit of deriving
+benchmark sets from tags).
 """
 
 from __future__ import annotations
@@ -23,9 +25,9 @@ from typing import Any
 import gymnasium as gym
 from gymnasium.envs.registration import load_env_creator
 
-from ..config import IPPConfig, quoted
-from ..data import data_dir
-from ..team import TeamConfig
+from ..core.config import IPPConfig, quoted
+from ..core.data import data_dir
+from ..core.team import TeamConfig
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -42,7 +44,7 @@ class TaskSpec:
     Attributes:
         builtin: one of the suite's ``tasks/`` files (False: a user's file, :func:`load_task`).
         sim: the file's ``[sim]`` table (the MuJoCo deployment's settings), as read.
-        team: the file's ``[team]`` table (a team task's UAVs, :class:`~ipp_bench.team.TeamConfig`),
+        team: the file's ``[team]`` table (a team task's UAVs, :class:`~ipp_bench.core.team.TeamConfig`),
             validated; empty for a single-UAV task.
     """
 
@@ -55,6 +57,11 @@ class TaskSpec:
     builtin: bool = True
     sim: dict[str, Any] = field(default_factory=dict)
     team: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def is_team(self) -> bool:
+        """Whether the task flies a team (its file has a ``[team]`` table)."""
+        return bool(self.team)
 
 
 class TaskFileError(ValueError):
@@ -91,7 +98,7 @@ def load_task_file(path, builtin: bool = False) -> TaskSpec:
     Raises:
         TaskFileError: naming the file, the line where known, and what is wrong.
     """
-    from ..limits import check_sizes
+    from ..core.limits import check_sizes
 
     path = _task_path(path, "load_task_file(path)")
     raw = _read_regular_file(path)
@@ -152,29 +159,20 @@ def load_task_file(path, builtin: bool = False) -> TaskSpec:
         line = _line_of(text, m.group(m.lastindex)) if m else None
         raise TaskFileError(path, str(err), line) from None
     team = data.get("team", {})
-    if team or entry in TEAM_ENTRY_POINTS:
+    if "team" in data:  # a team task: its [team] table says so (its class is checked when it is made)
+        if not isinstance(team, dict) or not team:
+            raise TaskFileError(path, "team is invalid: expected a [team] table with at least size = N",
+                                _line_of(text, "team"))
         try:
             TeamConfig.from_dict(team).check(config)
         except ValueError as err:
             raise TaskFileError(path, str(err), _line_of(text, "team")) from None
-        if entry not in TEAM_ENTRY_POINTS:
-            raise TaskFileError(path, f"a [team] table needs entry_point = {TEAM_ENTRY_POINT!r} (the roadmap) or "
-                                f"{SIM_TEAM_ENTRY_POINT!r} (MuJoCo)", _line_of(text, "entry_point"))
     return TaskSpec(task_id, entry, tuple(tags), description.strip(), config, str(path), builtin, dict(sim),
                     dict(team))
 
 
-#: the environment classes of the suite, named where an entry point is refused
-SUITE_ENTRY_POINTS = ("ipp_bench.envs.graph:GraphIPPEnv", "ipp_bench.envs.twin:TwinIPPEnv",
-                      "ipp_bench.sim.env:MuJoCoIPPEnv", "ipp_bench.envs.team:TeamGraphEnv",
-                      "ipp_bench.sim.team:MuJoCoTeamEnv")
 #: what ``gym.make_vec`` of a MuJoCo task passes to its vector env (the spec's ``vector_kwargs``)
 VECTOR_KWARGS = {"context": "forkserver"}
-#: the team tasks' environment: a PettingZoo AEC env, made by :func:`make_env` (``gym.make`` refuses it)
-TEAM_ENTRY_POINT = "ipp_bench.envs.team:TeamGraphEnv"
-#: a team task deployed in MuJoCo (several quadrotors in one scene), also made by :func:`make_env`
-SIM_TEAM_ENTRY_POINT = "ipp_bench.sim.team:MuJoCoTeamEnv"
-TEAM_ENTRY_POINTS = (TEAM_ENTRY_POINT, SIM_TEAM_ENTRY_POINT)
 _ENTRY_POINT = re.compile(r"^ipp_bench(\.[A-Za-z_][A-Za-z0-9_]*)+:[A-Za-z_][A-Za-z0-9_]*$")
 
 
@@ -184,8 +182,9 @@ def entry_point_problem(entry: Any) -> str | None:
     names runs that module's code (any installed module, before anything else is checked)."""
     if isinstance(entry, str) and _ENTRY_POINT.match(entry):
         return None
+    classes = sorted({spec.entry_point for spec in globals().get("TASKS", {}).values() if spec.builtin})
     return (f"entry_point = {quoted(entry)} is invalid: expected a class of this package, "
-            f"'ipp_bench.<module>:<Class>', one of {list(SUITE_ENTRY_POINTS)} (a task file imports nothing else)")
+            f"'ipp_bench.<module>:<Class>', one of {classes} (a task file imports nothing else)")
 
 
 #: [bytes] the largest task file read (the suite's are about 2 KB)
@@ -299,27 +298,40 @@ def make_task_env(*, env_class: str, render_mode: str | None = None, **kwargs):
     window, which asks for pygame instead.)
     """
     kwargs.pop("vector_kwargs", None)  # the spec's, for gym.make_vec only (_register)
-    if env_class in TEAM_ENTRY_POINTS:  # registered so that gym.make says what it is, in one line
-        task = kwargs.get("task_id", "a team task")
+    spec = TASKS.get(kwargs.get("task_id", ""))
+    if spec is not None and spec.is_team:  # registered so that gym.make says what it is, in one line
+        task = spec.id
         raise ValueError(f"{task} is a team task: a PettingZoo AEC environment, not a gymnasium one; make it with "
                          f"ipp_bench.envs.make_env({task!r})")
     problem = entry_point_problem(env_class)
     if problem is not None:  # never import what a task file names unless it is the suite's
         raise ValueError(problem)
-    try:
-        cls = load_env_creator(env_class)
-    except ImportError as err:
-        spec = TASKS.get(kwargs.get("task_id", ""))
-        extra = "sim" if spec is not None and "deployment" in spec.tags else None  # the MuJoCo tasks
-        hint = f'pip install "ipp-bench[{extra}]"' if extra else "install the package that provides it"
-        if "pip install" in str(err):  # the import's own message already names what to install
-            raise ImportError(f"the environment {env_class} cannot be imported: {err}") from None
-        raise ImportError(f"the environment {env_class} cannot be imported ({err}): {hint}") from None
+    cls = _env_class(env_class, spec)
+    if _is_team_class(cls):
+        raise ValueError(f"{kwargs.get('task_id', env_class)}: entry_point = {env_class!r} is a team environment: "
+                         "a team task needs a [team] table (size, starts)")
     modes = list(cls.metadata.get("render_modes", []))
     if render_mode is not None and render_mode not in modes:
         raise ValueError(f"render_mode={render_mode!r} is invalid: valid are {modes} or None "
                          "(there is no window: render 'rgb_array' frames and show or save them)")
     return cls(render_mode=render_mode, **kwargs)
+
+
+def _is_team_class(cls: type) -> bool:
+    """Whether ``cls`` is a team's environment (PettingZoo's AEC API: it names its agents)."""
+    return hasattr(cls, "possible_agents") or getattr(cls, "metadata", {}).get("name", "").startswith("ipp_bench_team")
+
+
+def _env_class(env_class: str, spec: TaskSpec | None) -> type:
+    """The class a task file names, imported (a missing extra named in the error)."""
+    try:
+        return load_env_creator(env_class)
+    except ImportError as err:
+        extra = "sim" if spec is not None and "deployment" in spec.tags else None  # the MuJoCo tasks
+        hint = f'pip install "ipp-bench[{extra}]"' if extra else "install the package that provides it"
+        if "pip install" in str(err):  # the import's own message already names what to install
+            raise ImportError(f"the environment {env_class} cannot be imported: {err}") from None
+        raise ImportError(f"the environment {env_class} cannot be imported ({err}): {hint}") from None
 
 
 def register_all() -> None:
@@ -391,7 +403,7 @@ def make_env(task: str, *, render: bool = False, **overrides: Any):
     """
     task_id = resolve_task(task)
     spec = TASKS.get(task_id)
-    if spec is not None and spec.entry_point in TEAM_ENTRY_POINTS:
+    if spec is not None and spec.is_team:
         return make_team_env(spec, render=render, **overrides)
     with warnings.catch_warnings():  # gymnasium's own notice (in colour, once per process and task): ours instead
         warnings.filterwarnings("ignore", message=r".* is out of date\. You should consider upgrading",
@@ -415,22 +427,22 @@ def make_team_env(spec: TaskSpec, *, render: bool = False, **overrides: Any):
         team.update(extra)
     config = task_config(spec.id, overrides)
     render_mode = "rgb_array" if render else None
-    if spec.entry_point == SIM_TEAM_ENTRY_POINT:
-        try:  # by name: the envs layer never imports the simulation
-            cls = load_env_creator(SIM_TEAM_ENTRY_POINT)
-        except ImportError as err:
-            raise ImportError(f'{spec.id} needs the MuJoCo deployment: pip install "ipp-bench[sim]" ({err})') from None
-        sim = {k: v for k, v in overrides.items() if k in sim_fields(spec)}
-        return cls(config, team=team, render_mode=render_mode, task_id=spec.id, sim_section=spec.sim, **sim)
-    from .team import TeamGraphEnv
-
-    return TeamGraphEnv(config, team=team, render_mode=render_mode, task_id=spec.id)
+    problem = entry_point_problem(spec.entry_point)
+    if problem is not None:
+        raise ValueError(problem)
+    cls = _env_class(spec.entry_point, spec)
+    if not _is_team_class(cls):
+        raise ValueError(f"{spec.id}: a [team] table needs a team environment as its entry_point (e.g. "
+                         f"'ipp_bench.envs.team:TeamGraphEnv'); {spec.entry_point!r} flies one UAV")
+    sim = {k: v for k, v in overrides.items() if k in sim_fields(spec)}
+    extra = {"sim_section": spec.sim, **sim} if spec.sim else {}
+    return cls(config, team=team, render_mode=render_mode, task_id=spec.id, **extra)
 
 
 def is_team_task(task: str) -> bool:
     """Whether ``task`` (an id or a task file) is a team task (several UAVs, one belief)."""
     spec = TASKS.get(resolve_task(task))
-    return spec is not None and spec.entry_point in TEAM_ENTRY_POINTS
+    return spec is not None and spec.is_team
 
 
 class OutdatedTaskWarning(FutureWarning):
@@ -478,7 +490,7 @@ def task_config(task_id: str, overrides: dict[str, Any] | None = None) -> IPPCon
     """
     spec = task_spec(task_id)
     config = spec.config
-    if overrides and spec.entry_point in TEAM_ENTRY_POINTS and "team" in overrides:  # the [team] table's own
+    if overrides and spec.is_team and "team" in overrides:  # the [team] table's own
         overrides = {k: v for k, v in overrides.items() if k != "team"}
     if not overrides:
         return config

@@ -10,7 +10,7 @@ team unchanged. The mask offers the legs the UAV's own budget pays for and, unle
 share nodes, not a node another UAV stands on or is flying to (where every affordable leg is taken by
 a teammate, the taken ones are offered: a UAV never stops because a teammate is in the way).
 
-The belief holds every read-out taken up to the acting UAV's clock (:class:`~ipp_bench.team.TeamMission`).
+The belief holds every read-out taken up to the acting UAV's clock (:class:`~ipp_bench.core.team.TeamMission`).
 Rewards are the team's: after each leg, the shared belief's ROI trace reduction up to the next
 decision (the single-UAV task's reward, eq. 9), given to every UAV. A UAV whose budget pays for no
 further leg is terminated (stepped with None, then removed); the episode ends when every UAV is.
@@ -24,18 +24,18 @@ import numpy as np
 from gymnasium.utils import seeding
 from pettingzoo import AECEnv
 
-from .. import metrics as M
-from ..config import TIME_TOL_S, IPPConfig, invalid
-from ..fields import make_field
-from ..mission import cell_to_xyz
-from ..team import TeamConfig, TeamMission
+from ..core import metrics as M
+from ..core.config import TIME_TOL_S, IPPConfig, invalid
+from ..core.fields import make_field
+from ..core.mission import cell_to_xyz
+from ..core.team import TeamConfig, TeamMission
 from .graph import GraphIPPEnv
 from .panels import render_mission
 
 
 class UAVEnv(GraphIPPEnv):
     """One UAV's seat in a team episode: the single-UAV env's observation, mask and view for UAV
-    ``index`` (its mission is the UAV's :class:`~ipp_bench.team.MemberMission`, whose belief is the
+    ``index`` (its mission is the UAV's :class:`~ipp_bench.core.team.MemberMission`, whose belief is the
     team's). It shares the team env's roadmap and camera; it cannot be reset or stepped itself."""
 
     def __init__(self, team_env: TeamGraphEnv, index: int):  # noqa: D107 - no GraphIPPEnv.__init__: shared parts
@@ -67,8 +67,8 @@ class TeamGraphEnv(AECEnv):
     """Several UAVs mapping one field into one belief (PettingZoo AEC).
 
     Args:
-        config: the task's :class:`~ipp_bench.config.IPPConfig` (or a dict of its sections).
-        team: the task's ``[team]`` table (:class:`~ipp_bench.team.TeamConfig` or a dict).
+        config: the task's :class:`~ipp_bench.core.config.IPPConfig` (or a dict of its sections).
+        team: the task's ``[team]`` table (:class:`~ipp_bench.core.team.TeamConfig` or a dict).
         render_mode: ``"rgb_array"`` or None.
         task_id: the task's id (tables, messages).
         **overrides: config fields by name (``budget_s=100``).
@@ -90,7 +90,7 @@ class TeamGraphEnv(AECEnv):
         elif isinstance(team, dict):
             team = TeamConfig.from_dict(team)
         elif not isinstance(team, TeamConfig):
-            invalid("team", team, "an ipp_bench.team.TeamConfig, a dict of the [team] table or None")
+            invalid("team", team, "an ipp_bench.core.team.TeamConfig, a dict of the [team] table or None")
         self.graph = GraphIPPEnv(config, render_mode=render_mode, task_id=task_id, **overrides)
         self.config = self.graph.config
         team.check(self.config)

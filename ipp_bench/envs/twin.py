@@ -6,9 +6,9 @@ from typing import Any
 
 import numpy as np
 
-from ..config import IPPConfig
-from ..mission import Mission
-from ..twin import CameraErrorLegs
+from ..core.config import IPPConfig
+from ..core.mission import Mission
+from ..core.twin import CameraErrorLegs
 from .graph import GraphIPPEnv
 
 
@@ -19,7 +19,7 @@ class TwinIPPEnv(GraphIPPEnv):
     The roadmap MDP of :class:`~ipp_bench.envs.graph.GraphIPPEnv` on the deployment's problem
     (``MuJoCoWeed15-v1``'s grid, roadmap, weed-patch field family, fitted prior, threshold and
     camera-error constants, copied into its task file), with a sensor that draws the calibrated
-    camera error (:class:`~ipp_bench.twin.CameraErrorLegs`: persistent per cell, resolution and
+    camera error (:class:`~ipp_bench.core.twin.CameraErrorLegs`: persistent per cell, resolution and
     episode, spatially correlated so that binned blocks share it, white noise on top, and the rows of
     the cells a tilted frame misses dropped). Legs are
     straight at the mission speed (no velocity ramps, wind or estimator). The belief is the

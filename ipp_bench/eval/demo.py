@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import write_atomically
+from ..core.data import write_atomically
 from ..sim.video import DemoVideo, make_sim_env
 
 DEFAULT_TASK = "ipp_bench/MuJoCoWeed15-v1"
@@ -169,7 +169,7 @@ class _SigtermAsInterrupt:
 
 def _check_video_settings(args: argparse.Namespace) -> tuple[int, int]:
     """The video's (width, height), after every setting that sizes the work is checked (one line each)."""
-    from ipp_bench.config import check_integer, check_number
+    from ipp_bench.core.config import check_integer, check_number
 
     size = _parse_size(args.size)
     check_integer("--fps", args.fps, *FPS_RANGE)
@@ -220,7 +220,7 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def _fly_and_write(args: argparse.Namespace, size: tuple[int, int], out: Path, png: Path) -> int:
-    from ipp_bench.data import OutputWriteError
+    from ipp_bench.core.data import OutputWriteError
     from ipp_bench.envs import short_task_id
 
     from .leaderboard import one_line

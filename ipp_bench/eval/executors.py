@@ -2,7 +2,7 @@
 
 All three take a picklable module-level function and a list of jobs and yield ``(job, result)``
 pairs as jobs finish (in completion order, which the leaderboard does not rely on). Each worker
-process runs numpy's BLAS on one thread (:func:`ipp_bench._threads.limit_blas_threads`), so an
+process runs numpy's BLAS on one thread (:func:`ipp_bench.core._threads.limit_blas_threads`), so an
 episode's numbers are the same whichever backend or worker count runs it.
 
 - ``serial``: one job after another in this process.
@@ -36,7 +36,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import TypeVar
 
-from .._threads import available_cpus, limit_blas_threads
+from ..core._threads import available_cpus, limit_blas_threads
 
 BACKENDS = ("serial", "process", "ray")
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import cell_centre
-from ..data import write_atomically
+from ..core.config import cell_centre
+from ..core.data import write_atomically
 
 FIGURE_EXTRA_MESSAGE = 'the --render figure needs matplotlib: pip install "ipp-bench[eval]"'
 

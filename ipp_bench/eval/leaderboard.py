@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..data import OutputWriteError
+from ..core.data import OutputWriteError
 from ..envs import load_task, short_task_id
 from .aggregate import POWER_HALF_WIDTH
 from .executors import JobError, JobFailed, default_backend, make_executor

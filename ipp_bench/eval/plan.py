@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import IPPConfig, field_owners
+from ..core.config import IPPConfig, field_owners
 from ..envs import tagged, task_config, task_spec
 from ..envs.registry import is_team_task, resolve_task
 from ..planners import make_config, make_planner, parse_spec, planner_names

@@ -56,9 +56,9 @@ from typing import Any
 
 import numpy as np
 
-from ..data import write_atomically
+from ..core.data import write_atomically
+from ..core.mission import REPORT_KEYS
 from ..envs import short_task_id
-from ..mission import REPORT_KEYS
 from ..planners import is_reference
 from . import aggregate as agg_stats
 from .aggregate import BOOTSTRAP_METHOD, BOOTSTRAP_SEED, LEVEL, N_RESAMPLES, POWER_HALF_WIDTH, bootstrap_ci
@@ -225,17 +225,17 @@ def _pairs_table(agg: Aggregate, pairs: Sequence[tuple[str, str]], key: str, nam
 def team_pairs(tasks: Sequence[str]) -> list[tuple[str, str, int]]:
     """(single-UAV task, team task, UAVs) for every team task among ``tasks`` whose single-UAV task (the
     same configuration: field family, prior, camera, roadmap, budget, report times, seeds) is there too."""
-    from ..envs.registry import TASKS, TEAM_ENTRY_POINTS
-    from ..team import TeamConfig
+    from ..core.team import TeamConfig
+    from ..envs.registry import TASKS
 
     out = []
     for team in tasks:
         spec = TASKS.get(team)
-        if spec is None or spec.entry_point not in TEAM_ENTRY_POINTS:
+        if spec is None or not spec.is_team:
             continue
         for single in tasks:
             other = TASKS.get(single)
-            if other is not None and other.entry_point not in TEAM_ENTRY_POINTS and other.config == spec.config:
+            if other is not None and not other.is_team and other.config == spec.config:
                 out.append((single, team, TeamConfig.from_dict(spec.team).size))
     return out
 

@@ -51,8 +51,8 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from ..data import OutputWriteError, check_output_dir, write_atomically
-from ..mission import REPORT_KEYS
+from ..core.data import OutputWriteError, check_output_dir, write_atomically
+from ..core.mission import REPORT_KEYS
 from .plan import Plan, fingerprint_differences, report_times
 
 RESULTS_CSV = "results.csv"

@@ -37,14 +37,16 @@ from typing import Any
 
 from .base import ContinuousPlanner, GraphPlanner, Planner, RobotView, TeamRobotView, TeamTruthView, TruthView
 
-#: the suite's planners: name -> "module:Class"; the class has a ``Config`` dataclass attribute
+#: the planners of this layer: name -> "module:Class"; the class has a ``Config`` dataclass attribute.
+#: The suite's planners of the layers above (``attention``, in :mod:`ipp_bench.policies`) join through
+#: the entry point a plugin uses, declared in the suite's own ``pyproject.toml``: a plain import here
+#: would point upward, and the import-linter contracts would refuse it.
 BUILT_IN: Mapping[str, str] = MappingProxyType({
     "random": "ipp_bench.planners.simple:RandomPlanner",
     "coverage": "ipp_bench.planners.simple:CoveragePlanner",
     "greedy": "ipp_bench.planners.greedy:GreedyPlanner",
     "mcts": "ipp_bench.planners.mcts:MCTSPlanner",
     "cmaes": "ipp_bench.planners.cmaes:CMAESPlanner",
-    "attention": "ipp_bench.policies.planner:AttentionPlanner",
     "oracle": "ipp_bench.planners.oracle:OraclePlanner",
     "team-greedy": "ipp_bench.planners.team:TeamGreedyPlanner",
     "team-coverage": "ipp_bench.planners.team:TeamCoveragePlanner",
@@ -54,6 +56,20 @@ BUILT_IN: Mapping[str, str] = MappingProxyType({
 #: show the room above the planners that cannot; reports show them apart, never as the best
 REFERENCE_PLANNERS: tuple[str, ...] = ("oracle", "team-oracle")
 ENTRY_POINT_GROUP = "ipp_bench.planners"
+#: the distribution whose entry points are the suite's own planners (not plugins)
+SUITE_DISTRIBUTION = "ipp-bench"
+
+
+def _installed_planners() -> tuple[dict[str, str], dict[str, str]]:
+    """The planners installed under :data:`ENTRY_POINT_GROUP`: (the suite's own, the plugins'), each
+    name -> ``"module:Class"``."""
+    own: dict[str, str] = {}
+    plugins: dict[str, str] = {}
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        dist = getattr(ep, "dist", None)
+        name = (getattr(dist, "name", None) or "").replace("_", "-").lower()
+        (own if name == SUITE_DISTRIBUTION else plugins).setdefault(ep.name, ep.value)
+    return own, plugins
 
 
 class PlannerRegistry(MutableMapping):
@@ -73,6 +89,7 @@ class PlannerRegistry(MutableMapping):
         self._targets: dict[str, str] = {}
         self._classes: dict[str, type] = {}  # names registered with a class, not an importable target
         self._entry_points: set[str] = set()  # names that came from an installed plugin's entry point
+        self._suite: set[str] = set()  # names that came from the suite's own entry points (attention)
         self._plugins_pending = False
         for name, target in (targets or {}).items():
             self.register(name, target)
@@ -82,10 +99,18 @@ class PlannerRegistry(MutableMapping):
         """The targets, with the installed plugins added once (if this registry takes them)."""
         if self._plugins_pending:
             self._plugins_pending = False
-            for ep in entry_points(group=ENTRY_POINT_GROUP):
-                if ep.name not in self._targets:
-                    self._targets[ep.name] = ep.value
-                    self._entry_points.add(ep.name)
+            own, plugins = _installed_planners()
+            own = {n: t for n, t in own.items() if n not in self._targets}
+            if own:  # listed among the suite's planners, before its references (the order of the reports)
+                names = list(self._targets)
+                at = next((i for i, n in enumerate(names) if n in REFERENCE_PLANNERS), len(names))
+                self._targets = {**{n: self._targets[n] for n in names[:at]}, **own,
+                                 **{n: self._targets[n] for n in names[at:]}}
+                self._suite.update(own)
+            for name, target in plugins.items():
+                if name not in self._targets:
+                    self._targets[name] = target
+                    self._entry_points.add(name)
         return self._targets
 
     # -- the mapping ------------------------------------------------------------------------------
@@ -99,6 +124,7 @@ class PlannerRegistry(MutableMapping):
         del self._loaded()[name]
         self._classes.pop(name, None)
         self._entry_points.discard(name)
+        self._suite.discard(name)
 
     def __iter__(self) -> Iterator[str]:
         return iter(list(self._loaded()))
@@ -123,6 +149,7 @@ class PlannerRegistry(MutableMapping):
             raise ValueError(f"planner {name!r}: target {target!r} is invalid: expected 'module:Class' or a class")
         self._loaded()[name] = target
         self._entry_points.discard(name)
+        self._suite.discard(name)
 
     def copy(self) -> PlannerRegistry:
         """A local registry with this one's planners (plugins included): what is registered there stays there."""
@@ -130,6 +157,7 @@ class PlannerRegistry(MutableMapping):
         out._targets = dict(self._loaded())
         out._classes = dict(self._classes)
         out._entry_points = set(self._entry_points)
+        out._suite = set(self._suite)
         return out
 
     # -- building ---------------------------------------------------------------------------------
@@ -158,7 +186,7 @@ class PlannerRegistry(MutableMapping):
             raise ValueError(f"planner {name!r}: {module} has no {cls!r} (registered as {target!r})") from None
 
     def _built_in(self, name: str) -> bool:
-        return name not in self._classes and BUILT_IN.get(name) == self._loaded().get(name)
+        return name not in self._classes and (name in self._suite or BUILT_IN.get(name) == self._loaded().get(name))
 
     def describe(self, name: str) -> str:
         """Where a planner came from, for messages: ``planner 'theirs' (entry point 'theirs = module:Class' of
@@ -226,7 +254,7 @@ def _where(err: BaseException) -> str:
     return f"{frames[-1].filename}:{frames[-1].lineno}" if frames else "?"
 
 
-#: the suite's registry: the built-in planners, then the installed plugins
+#: the suite's registry: the built-in planners, the suite's own entry points, then the installed plugins
 REGISTRY = PlannerRegistry(BUILT_IN, plugins=True)
 
 

@@ -13,7 +13,7 @@
 
 They compute the references' quantities in exact arithmetic (the Kalman update's ``Tr(S^-1 G)``
 regrouped; floating point reordered, nothing approximated) and are deterministic: no fast-math, a fixed
-loop order, one thread, BLAS only through ``np.dot`` (on one thread, ``ipp_bench._threads``).
+loop order, one thread, BLAS only through ``np.dot`` (on one thread, ``ipp_bench.core._threads``).
 
 They are compiled once, when a planner that uses them is first reset (:func:`warm_up`: 10-35 s, outside
 any decision), and numba caches the machine code: in ``__pycache__`` beside this file where it may write
@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from ..mission import leg_length, leg_samples
+from ..core.mission import leg_length, leg_samples
 from .base import MIN_LEG_M
 
 try:
@@ -762,14 +762,14 @@ def readout_blocks(P, B, row_ptr, cells, weights, var):
     return S, G
 
 
-_EPS = 1e-9  # [m] as ipp_bench.sensor: centres exactly on the footprint's edge are inside
+_EPS = 1e-9  # [m] as ipp_bench.core.sensor: centres exactly on the footprint's edge are inside
 
 
 @_jit
 def camera_rows(points, noise_a, noise_b, binned_scale, tan, res, n_rows, n_cols, binning_altitude, binning,
                 s_cell, s_binned, r_corr):
     """The camera's read-outs from each of ``points`` ((K, 3) [m]) in turn, as sparse rows: what
-    :meth:`~ipp_bench.sensor.Sensor.observe` gives at each point (none where the footprint misses the map),
+    :meth:`~ipp_bench.core.sensor.Sensor.observe` gives at each point (none where the footprint misses the map),
     row by row, compiled: the same footprint (``tan`` = tan(fov / 2); a ``n_rows`` x ``n_cols`` grid of
     ``res`` [m] cells), binning and weights, and the same noise variance, ``noise_a (1 - exp(-noise_b h))``
     (times ``binned_scale`` = f^e when binned) plus the persistent share ``s w^T C w`` (``s_cell``,
@@ -859,7 +859,7 @@ def leg_points(start, end, spacing: float) -> np.ndarray:
 
 
 def camera_args(sensor) -> tuple:
-    """The constants of ``sensor`` (a :class:`~ipp_bench.sensor.Sensor`) that :func:`camera_rows` takes
+    """The constants of ``sensor`` (a :class:`~ipp_bench.core.sensor.Sensor`) that :func:`camera_rows` takes
     after the points, computed as the camera computes them."""
     cfg, grid = sensor.cfg, sensor.grid
     binned_scale = float(cfg.binning) ** cfg.binning_noise_exponent if cfg.binning_noise_exponent else 1.0

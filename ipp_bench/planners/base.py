@@ -17,14 +17,14 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from .. import metrics as M
-from ..belief import GPBelief, PredictedBelief, error_states
-from ..belief_window import WindowBelief
-from ..config import IPPConfig
-from ..gains import TIE_RTOL, beats, first_best  # noqa: F401  (the planners' argmax and comparison, here for plugins)
-from ..mission import fits_budget, leg_length, leg_samples
-from ..roadmap import Roadmap
-from ..sensor import Observation, Sensor, stack
+from ..core import metrics as M
+from ..core.belief import GPBelief, PredictedBelief, error_states
+from ..core.belief_window import WindowBelief
+from ..core.config import IPPConfig
+from ..core.gains import TIE_RTOL, beats, first_best  # noqa: F401  (the planners' argmax and comparison, here for plugins)
+from ..core.mission import fits_budget, leg_length, leg_samples
+from ..core.roadmap import Roadmap
+from ..core.sensor import Observation, Sensor, stack
 
 #: view -> the env it reads: the one place a view's env is kept (a view holds no reference to it)
 _ENVS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -32,7 +32,7 @@ _ENVS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 def stacked_leg(view: RobotView, node: int, action: int) -> tuple | None:
     """The read-outs of the roadmap leg from ``node`` to its neighbour number ``action`` as the mission
-    would take them, stacked into one ``(cells, W, var)`` (:func:`~ipp_bench.sensor.stack`); None where
+    would take them, stacked into one ``(cells, W, var)`` (:func:`~ipp_bench.core.sensor.stack`); None where
     the camera sees nothing on the leg."""
     rm = view.roadmap
     obs = view.leg_observations(rm.positions[node], rm.positions[rm.neighbours[node, action]])
@@ -143,7 +143,7 @@ class RobotView:
 
     def static_neighbour_durations(self, node: int) -> np.ndarray:
         """(k,) flight times [s] from node ``node`` to its neighbours whatever the drone's state now
-        (:meth:`~ipp_bench.mission.Mission.static_leg_durations`): what caches kept across decisions and
+        (:meth:`~ipp_bench.core.mission.Mission.static_leg_durations`): what caches kept across decisions and
         episodes hold, so that what they hold does not depend on when they were built."""
         rm = self.roadmap
         return _ENVS[self].mission.static_leg_durations(rm.positions[node], rm.positions[rm.neighbours[node]])
@@ -172,14 +172,14 @@ class RobotView:
         return self.sensor.cfg, self.config.grid, self.config.mission, clock
 
     def error_states(self):
-        """The camera-error states of the belief (:class:`~ipp_bench.belief.PersistentErrorBelief`:
+        """The camera-error states of the belief (:class:`~ipp_bench.core.belief.PersistentErrorBelief`:
         the deployment and its twin, whose camera repeats its error at a cell), or None where the
         task's read-out noise is white (read it; never update it)."""
         return error_states(_ENVS[self].mission)
 
     def require_dense_belief(self, planner: str, reason: str) -> None:
         """Refuse, in one line naming the task, the planner and ``reason``, a task whose belief is not the
-        dense :class:`~ipp_bench.belief.GPBelief` (``gp.belief = "window"``): for planners that need
+        dense :class:`~ipp_bench.core.belief.GPBelief` (``gp.belief = "window"``): for planners that need
         its full covariance. Called in ``reset``, so a leaderboard refuses before the first episode."""
         gp, grid = self.config.gp, self.config.grid
         if gp.belief != "dense":
@@ -264,7 +264,7 @@ class TeamRobotView(RobotView):
 
     def belief_ahead(self) -> GPBelief | PredictedBelief:
         """The belief with the teammates' pending read-outs fused into its covariance in advance
-        (:class:`~ipp_bench.belief.PredictedBelief`; the mean is today's): the covariance does not
+        (:class:`~ipp_bench.core.belief.PredictedBelief`; the mean is today's): the covariance does not
         depend on the values read, so this is exactly the covariance the belief will have once they
         are taken. The live belief where none are pending."""
         self.require_dense_belief("a team-aware planner", "the teammates' read-outs are fused into the full "
@@ -299,7 +299,7 @@ class _PlannerBase:
     """Settings, view and a per-episode random generator (seeded by ``reset``).
 
     ``settings`` is the planner's own ``Config`` dataclass (``mcts:simulations=50``); the task's
-    configuration is ``view.config`` (an :class:`~ipp_bench.config.IPPConfig`): two names, two things.
+    configuration is ``view.config`` (an :class:`~ipp_bench.core.config.IPPConfig`): two names, two things.
     """
 
     name: ClassVar[str] = "base"

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import lapack
 
-from ..belief import GPBelief
-from ..config import check_integer, check_number
+from ..core.belief import GPBelief
+from ..core.config import check_integer, check_number
 from .base import MIN_FLIGHT_M, ContinuousPlanner
 
 #: how a population's objective values are computed (the same values, up to rounding)

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..limits import MAX_DECISIONS
+from ..core.limits import MAX_DECISIONS
 from . import PlannerError, PlannerRegistry, make_planner, view_for, what_raised
 
 
@@ -55,11 +55,11 @@ class EpisodeResult:
         planner: planner spec (or the planner's name when an object was passed).
         seed: episode seed.
         report: one dict per report time within the budget: ``time_s`` and the report metrics
-            (:meth:`ipp_bench.mission.Mission.report`).
+            (:meth:`ipp_bench.core.mission.Mission.report`).
         decisions: decisions made.
         decision_times_s: wall time of every decision [s].
         episode_wall_s: wall time of the whole episode [s].
-        final: the mission's metrics at the end (:meth:`~ipp_bench.mission.Mission.metrics`).
+        final: the mission's metrics at the end (:meth:`~ipp_bench.core.mission.Mission.metrics`).
         total_reward: sum of the env's rewards (graph planners; 0.0 for continuous).
         history: the mission's time-stamped metric records.
     """
@@ -238,7 +238,7 @@ def fly_team_episode(env, planner: str | Any, seed: int, *, options: dict | None
         UAV's decisions, ``total_reward`` the team reward's sum.
 
     Raises:
-        RuntimeError: the planners made :data:`~ipp_bench.limits.MAX_DECISIONS` decisions per UAV without
+        RuntimeError: the planners made :data:`~ipp_bench.core.limits.MAX_DECISIONS` decisions per UAV without
             ending the episode, or one called ``sys.exit``.
         PlannerError: a planner's ``reset`` raised (a ValueError it raises passes as it is).
     """

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..belief import LegBatch
-from ..gains import first_best
+from ..core.belief import LegBatch
+from ..core.gains import first_best
 from .base import GraphPlanner, stacked_leg
 
 
@@ -29,7 +29,7 @@ def leg_batch(view, node: int) -> LegBatch | list:
 
     They depend only on the roadmap, the camera and the measurement spacing, so they are built once
     per roadmap (the planner's episodes and the attention policy's feature share them). The dense
-    belief gets one :class:`~ipp_bench.belief.LegBatch` (weights padded to the union of the legs'
+    belief gets one :class:`~ipp_bench.core.belief.LegBatch` (weights padded to the union of the legs'
     cells) per node, every node kept; the window belief the per-leg list ``(cells, W, var)`` or None
     it is built from, the last :data:`WINDOW_LEG_CACHE_NODES` nodes kept.
     """

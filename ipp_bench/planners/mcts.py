@@ -23,7 +23,7 @@ by ``time_limit_s`` of wall time per decision (then results depend on the machin
 
 How the gains are computed with ``search = "lowrank"`` (the default). A tree state's covariance is the
 root's less the updates along its path, ``P = P0 - U U^T`` with ``U = [A_1 ... A_d]`` (n x r, r the
-read-out rows flown since the root; ``A_j A_j^T`` one leg's Kalman update, :func:`~ipp_bench.belief.gain_factor`).
+read-out rows flown since the root; ``A_j A_j^T`` one leg's Kalman update, :func:`~ipp_bench.core.belief.gain_factor`).
 A state keeps only its edges' small terms (each leg's L^-1, with ``L L^T = S``, and ``Y = W U`` at the
 state it leaves) and ``K = U^T D U`` (r x r; D: the ROI's diagonal mask), never P nor U: the search only
 ever reads U and ``V = P0 D U`` on the q cells that the legs of the node being expanded see, and it
@@ -32,7 +32,7 @@ and ``P0 D C_j = B0 H_j^T - V Y_j^T`` (``B0 = P0 D P0``, one product per decisio
 touching the rest of the map. On those cells ``P_cc = P0_cc - Uc Uc^T`` and ``(P D P)_cc = B0_cc -
 Vc Uc^T - Uc Vc^T + Uc K Uc^T``, and a leg (rows W, noise R) reduces Tr(P) over the ROI by
 ``Tr(S^-1 G)`` with ``S = W P_cc W^T + R`` and ``G = W (P D P)_cc W^T``: the reference's ``sum_r (HP)_r^T
-S^-1 (HP)_r`` (:func:`~ipp_bench.belief.trace_reductions`) regrouped. The root's terms cost O(q r^2 +
+S^-1 (HP)_r`` (:func:`~ipp_bench.core.belief.trace_reductions`) regrouped. The root's terms cost O(q r^2 +
 q^2 r); a state below it starts from its parent's (it keeps its rows of U and V and its P_cc and
 (P D P)_cc): on the cells both nodes' legs see (about nine in ten) they are the parent's, the other
 cells' rows are rebuilt from the root, and the edge's block A (m columns) updates them all, ``P_cc -=
@@ -75,9 +75,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..belief import LegBatch, trace_reductions
-from ..config import check_integer, check_number
-from ..mission import TIME_TOL_S
+from ..core.belief import LegBatch, trace_reductions
+from ..core.config import check_integer, check_number
+from ..core.mission import TIME_TOL_S
 from .base import GraphPlanner, stacked_leg
 
 #: the most simulations per decision (a decision at 10^5 takes about half an hour)

@@ -2,8 +2,8 @@
 
 The search of :mod:`ipp_bench.planners.mcts` (same tree, widening, UCT, rollout and rewards) in its
 direct form: every edge copies the parent's n x n covariance and downdates it with the leg's Kalman
-update (:func:`~ipp_bench.belief.gain_factor`, :func:`~ipp_bench.belief.downdate_inplace`), and every
-expanded state scores its legs with :func:`~ipp_bench.belief.trace_reductions` on that copy. It costs
+update (:func:`~ipp_bench.core.belief.gain_factor`, :func:`~ipp_bench.core.belief.downdate_inplace`), and every
+expanded state scores its legs with :func:`~ipp_bench.core.belief.trace_reductions` on that copy. It costs
 O(n^2) memory and time per edge; ``mcts`` computes the same gains from a low-rank factor and is what
 the leaderboard runs. This one stays as the reference the tests and ``benchmarks/bench_search.py``
 compare it with, and runs as ``mcts:search=reference``.
@@ -17,8 +17,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..belief import LegBatch, downdate_inplace, gain_factor, trace_reductions
-from ..mission import TIME_TOL_S
+from ..core.belief import LegBatch, downdate_inplace, gain_factor, trace_reductions
+from ..core.mission import TIME_TOL_S
 from .base import GraphPlanner, softmax, stacked_leg
 
 if TYPE_CHECKING:

@@ -11,8 +11,8 @@ the tiny gains of short legs over it beat every leg into empty ground, and a pat
 is never reached (measured on ``Hotspots30Eval-v2``: stuck at 18 % for 60 s on seeds where greedy
 reaches 48 %). So the oracle scores, besides its neighbours' legs, every roadmap node above a true
 ROI cell as a target: the ROI trace reduction of one look there per second of the quickest flight
-to it along the roadmap (by the mission's clock; :class:`~ipp_bench.gains.LookBatch`,
-:func:`~ipp_bench.gains.far_move`), and flies the first leg of that path when a target beats every
+to it along the roadmap (by the mission's clock; :class:`~ipp_bench.core.gains.LookBatch`,
+:func:`~ipp_bench.core.gains.far_move`), and flies the first leg of that path when a target beats every
 neighbour. It is the same criterion, gain per second of flight, over a larger
 set of moves; it remains myopic (one look at the target, no plan beyond it), so its row indicates
 the room that knowing where the ROI lies opens above greedy, not an upper bound.
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..gains import LookBatch, far_move, first_best
+from ..core.gains import LookBatch, far_move, first_best
 from .greedy import GreedyPlanner
 
 

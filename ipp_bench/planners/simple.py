@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import check_number, invalid
+from ..core.config import check_number, invalid
 from .base import MIN_LEG_M, ContinuousPlanner, GraphPlanner
 
 

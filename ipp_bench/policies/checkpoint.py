@@ -24,7 +24,7 @@ from typing import Any
 
 import torch
 
-from ipp_bench.data import write_atomically
+from ipp_bench.core.data import write_atomically
 from ipp_bench.policies.network import MAX_MEMBERS, AttentionEnsemble, AttentionNet, NetConfig
 
 FORMAT = "ipp_bench.attention/1"

@@ -4,11 +4,11 @@ Greedy knows, for each neighbour, the predicted ROI trace reduction of flying th
 node features of :class:`~ipp_bench.envs.graph.GraphIPPEnv` (position, belief mean and std over
 the footprint) do not say it, and on a 30 x 30 map a network imitating greedy from them alone
 matched greedy's choice in 10% of the states. This module adds a sixth feature for every node:
-the look gain of :class:`~ipp_bench.gains.LookGain`,
+the look gain of :class:`~ipp_bench.core.gains.LookGain`,
 
     g_i = 10 * (predicted ROI trace reduction of one read-out taken at node i) / Tr_ROI(P)
 
-predicted from the belief's marginal variances (the formula and its cost: :mod:`ipp_bench.gains`),
+predicted from the belief's marginal variances (the formula and its cost: :mod:`ipp_bench.core.gains`),
 or its map-invariant form (:func:`invariant_features`).
 
 The environment is unchanged: :func:`gain_feature_wrapper` adds the column during training and
@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from ..belief import error_states
-from ..gains import LookGain
+from ..core.belief import error_states
+from ..core.gains import LookGain
 
 BASE_NODE_DIM = 5  # the GraphIPPEnv node features
 GAIN_NODE_DIM = BASE_NODE_DIM + 1

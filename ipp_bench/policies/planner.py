@@ -13,7 +13,7 @@ leaderboard decide the same way.
 A decision is one forward pass of a small network (about 1 ms at 450 nodes): torch's intra-op
 threads only add hand-over cost there, and they oversubscribe the CPU when the leaderboard runs
 episodes in parallel processes, so the planner sets torch to one thread by default (``threads=0``
-leaves torch's setting alone), as ``ipp_bench._threads`` does for BLAS.
+leaves torch's setting alone), as ``ipp_bench.core._threads`` does for BLAS.
 """
 
 from __future__ import annotations
@@ -27,11 +27,11 @@ from typing import Any
 
 import numpy as np
 
-from .._threads import available_cpus
-from ..belief import downdate_inplace, gain_factor
-from ..config import TIME_TOL_S
-from ..gains import LookGain, beats, best_far_target
-from ..mission import fits_budget
+from ..core._threads import available_cpus
+from ..core.belief import downdate_inplace, gain_factor
+from ..core.config import TIME_TOL_S
+from ..core.gains import LookGain, beats, best_far_target
+from ..core.mission import fits_budget
 from ..planners.base import GraphPlanner, RobotView, softmax, stacked_leg, without_level
 
 #: nodes the network attends to by default: all of them up to 30 x 30 (1800), at 128 x 128 (32 768
@@ -444,7 +444,7 @@ class AttentionPlanner(GraphPlanner):
         and forth between two such nodes until the budget is spent (``docs/stall-guard.md``). The guard
         sees it in the belief (its total variance stopped falling) and flies the quickest roadmap path to
         the node whose one look gains most per second of flight (the network's look-gain input over the
-        flight time, :func:`~ipp_bench.gains.best_far_target`), then resets its window and hands back to
+        flight time, :func:`~ipp_bench.core.gains.best_far_target`), then resets its window and hands back to
         the network.
         """
         legs = self.settings.stall_legs

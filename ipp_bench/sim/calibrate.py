@@ -18,7 +18,7 @@ Two measurements, both on calibration episodes disjoint from every evaluation ep
    on episodes ``CALIBRATION_EPISODES`` (seeds >= 2^31; the tasks' evaluation seeds are below). The
    camera's error is mostly persistent (two looks at a cell correlate at 0.8-0.9, at either
    factor), larger where a cell is part weed (plant margins) and near 0 on bare soil. The belief
-   carries it as states (:class:`~ipp_bench.belief.PersistentErrorBelief`): a per-cell error per
+   carries it as states (:class:`~ipp_bench.core.belief.PersistentErrorBelief`): a per-cell error per
    factor, correlated between the factors, with variance s_f phi(t), plus white noise
    f^e a (1 - exp(-b h)) phi(t), phi(t) = k + (1 - k) 4 t (1 - t). k is the ratio of the mean
    squared error of read-outs of about 0 to that of read-outs of about 0.5 (:func:`noise_floor`);
@@ -111,7 +111,7 @@ def fit_noise_model(altitudes, factors, mse, count=None, e_range=(-4.0, 8.0)) ->
 
 def calibration_fields(grid, family: str, n: int) -> list[tuple[np.ndarray, int]]:
     """(truth, episode seed) of the ``n`` calibration fields (seeds disjoint from evaluation)."""
-    from ipp_bench.fields import make_field
+    from ipp_bench.core.fields import make_field
 
     out = []
     for i in range(n):
@@ -126,8 +126,8 @@ def measure(task_id: str, altitudes, factors, n_fields: int, positions_per_field
             image_size: int | None = None, verbose: bool = True, second_look_m: float = 1.5) -> CalibrationResult:
     """Flies the calibration and fits the noise model (see the module docstring)."""
     import ipp_bench.envs  # noqa: F401  (registers the tasks)
+    from ipp_bench.core.sensor import Sensor
     from ipp_bench.envs.registry import task_spec
-    from ipp_bench.sensor import Sensor
     from ipp_bench.sim.world import SimConfig, WeedWorld, restrict
 
     spec = task_spec(task_id)
@@ -270,7 +270,7 @@ def _with_constants(observations, sensor) -> list:
 
 def replay(missions, config, sensor) -> list[tuple[float, float, int]]:
     """Per mission: (negative log-likelihood, NIS, dof) of its Kalman batches under ``sensor``'s error model."""
-    from ipp_bench.belief import GPBelief, PersistentErrorBelief
+    from ipp_bench.core.belief import GPBelief, PersistentErrorBelief
 
     prior = GPBelief.prior(config.grid, config.gp)
     out = []
@@ -291,7 +291,7 @@ def replay(missions, config, sensor) -> list[tuple[float, float, int]]:
 
 
 def noise_floor(missions, empty: float = 0.02, half: tuple[float, float] = (0.4, 0.6)) -> float:
-    """k of :func:`~ipp_bench.belief.value_scale` by moments: the mean squared error of read-outs
+    """k of :func:`~ipp_bench.core.belief.value_scale` by moments: the mean squared error of read-outs
     whose value is <= ``empty`` over that of read-outs valued in ``half`` (errors against the truth)."""
     sq, t = [], []
     for batches, truth in missions:
@@ -431,7 +431,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"altitude rate of the look-to-look noise: b = {b:.4g} 1/m")
     # the error model: maximum likelihood over calibration missions, with the prior's field nugget
     if args.field_nugget is None:
-        from ipp_bench import gp_fit
+        from ipp_bench.core import gp_fit
 
         field_nugget = gp_fit.fit_prior(spec.config, gp_fit.DEFAULT_MAPS, gp_fit.FIT_SEED).nugget
     else:

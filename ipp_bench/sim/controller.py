@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 # the v1 reference lives in the core (the graph twin flies it too); re-exported here
-from ipp_bench.legs import ContinuousLeg, _blend_plan, continuous_durations  # noqa: F401
+from ipp_bench.core.legs import ContinuousLeg, _blend_plan, continuous_durations  # noqa: F401
 from ipp_bench.sim.quadrotor import GRAVITY, QuadrotorParams
 
 

@@ -42,7 +42,7 @@ def load(task_id: str = DEFAULT_TASK, *, seed: int | None = 0, **overrides: Any)
             or an override is invalid.
     """
     import ipp_bench.envs as envs
-    from ipp_bench.config import check_integer
+    from ipp_bench.core.config import check_integer
     from ipp_bench.envs.registry import is_team_task
 
     if seed is not None:  # before the world is built: numpy's own error names no argument

@@ -30,7 +30,7 @@ import ipp_bench.sim.gl  # noqa: F401  (chooses MUJOCO_GL before dm_control impo
 from dm_control.rl import control
 from dm_env import specs
 
-from ipp_bench.config import IPPConfig
+from ipp_bench.core.config import IPPConfig
 from ipp_bench.envs.graph import GraphIPPEnv
 from ipp_bench.envs.panels import render_mission
 from ipp_bench.sim.mission import MuJoCoMission
@@ -89,7 +89,7 @@ class MuJoCoIPPEnv(GraphIPPEnv, control.Task):
       with the soil's. The frame goes through OpenCV (HSV threshold, closing, homography onto the
       ground with the *estimated* pose, area resampling to cells) and the measurement z is what
       that pipeline estimates: no synthetic noise is added. The camera's error is mostly persistent,
-      so the belief carries it as states (:class:`~ipp_bench.belief.PersistentErrorBelief`: a
+      so the belief carries it as states (:class:`~ipp_bench.core.belief.PersistentErrorBelief`: a
       per-cell error per resolution factor, plus white noise, both larger in part-weed cells); the
       constants of the task file are fitted to the pipeline by ``python -m ipp_bench.sim.calibrate``.
       The drone flies through waypoints without stopping (velocity-continuous legs at up to 2 m/s,

@@ -1,4 +1,4 @@
-"""The MuJoCo platforms of a :class:`~ipp_bench.mission.Mission`: the simulated quadrotor and its camera.
+"""The MuJoCo platforms of a :class:`~ipp_bench.core.mission.Mission`: the simulated quadrotor and its camera.
 
 The mission keeps its bookkeeping (clock, budget, metrics); what changes is the platform it
 takes (:class:`ContinuousFlight`, v1, or :class:`StopAndGoFlight`, v0, both a
@@ -19,7 +19,7 @@ read-only access to the platform's world and logs. Against the graph's straight 
   legs) and on arrival; a read-out is the rendered frame through image formation, segmentation
   and projection with the estimated pose (:meth:`WeedWorld.read_camera`), never the ground truth.
   The Kalman update is the core's (:meth:`Mission.assimilate`, through the mission's belief model;
-  in v1 the camera's error states, :class:`~ipp_bench.belief.PersistentErrorBelief`); every
+  in v1 the camera's error states, :class:`~ipp_bench.core.belief.PersistentErrorBelief`); every
   update's normalised innovation squared is logged in ``nis_log`` (the belief's consistency
   check) by an update hook, with the S of the model the update uses.
 """
@@ -31,10 +31,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ipp_bench.belief import GPBelief
-from ipp_bench.config import IPPConfig
-from ipp_bench.mission import LegOutcome, Mission, Record
-from ipp_bench.sensor import Observation, Sensor
+from ipp_bench.core.belief import GPBelief
+from ipp_bench.core.config import IPPConfig
+from ipp_bench.core.mission import LegOutcome, Mission, Record
+from ipp_bench.core.sensor import Observation, Sensor
 from ipp_bench.sim.world import WeedWorld
 
 _TOL = 1e-9
@@ -200,7 +200,7 @@ class MuJoCoMission(Mission):
     """The core mission on a MuJoCo platform (:func:`mujoco_platform`), with its world and logs at hand.
 
     Args:
-        config, truth, rng, start_xyz, belief, sensor: as :class:`~ipp_bench.mission.Mission`
+        config, truth, rng, start_xyz, belief, sensor: as :class:`~ipp_bench.core.mission.Mission`
             (``rng`` draws the v0 sensor noise and, in v1, the episode's seed).
         world: the simulated world; its ground is repainted from ``truth``.
         texture_seed: see :class:`MuJoCoPlatform`.

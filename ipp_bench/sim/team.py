@@ -11,7 +11,7 @@ leg (a velocity-continuous reference, :class:`~ipp_bench.sim.controller.Continuo
 is exact at commit), the physics runs, every drone following its own reference, until the next leg
 ends; that UAV decides next. A camera read-out (every ``measurement_spacing`` metres each drone
 actually flies, and on arrival) goes to the team as it is taken and is fused in time order
-(:class:`~ipp_bench.team.TeamMission`), so the belief a UAV decides on holds every read-out taken by
+(:class:`~ipp_bench.core.team.TeamMission`), so the belief a UAV decides on holds every read-out taken by
 then. What a teammate's committed leg will still read is predicted from its reference (the sensor
 model's footprint every spacing metres along it): a team-aware planner fuses those predicted read-outs
 into its covariance in advance (``teammates_pending``). The drones do not collide with each other
@@ -30,17 +30,17 @@ from typing import Any
 
 import numpy as np
 
-from ipp_bench.config import IPPConfig, invalid
+from ipp_bench.core.config import IPPConfig, invalid
+from ipp_bench.core.mission import LegOutcome, Mission, Record
+from ipp_bench.core.sensor import Observation
+from ipp_bench.core.team import TeamConfig, TeamMission
 from ipp_bench.envs.panels import render_mission
 from ipp_bench.envs.team import TeamGraphEnv
-from ipp_bench.mission import LegOutcome, Mission, Record
-from ipp_bench.sensor import Observation
 from ipp_bench.sim.controller import ContinuousLeg
 from ipp_bench.sim.flight import step_together
 from ipp_bench.sim.mission import inside_map
 from ipp_bench.sim.render import azimuth_to_centre, chase_camera
 from ipp_bench.sim.world import SimConfig, WeedWorld, split_sim_settings
-from ipp_bench.team import TeamConfig, TeamMission
 
 _TOL = 1e-9
 _AHEAD_DT = 0.05  # [s] step along a committed reference when predicting its read-outs
@@ -209,7 +209,7 @@ class SimTeam:
 
 
 class DronePlatform:
-    """UAV ``uav``'s :class:`~ipp_bench.mission.Platform` in a simulated team: its drone of the shared
+    """UAV ``uav``'s :class:`~ipp_bench.core.mission.Platform` in a simulated team: its drone of the shared
     scene. Legs are committed here and flown by :meth:`SimTeam.fly_until`."""
 
     def __init__(self, team: SimTeam, uav: int):

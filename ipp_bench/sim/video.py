@@ -403,7 +403,7 @@ class DemoVideo:
 class H264Writer:
     """Encodes rgb24 frames to an H.264 mp4 with ffmpeg (imageio-ffmpeg's binary), atomically.
 
-    ffmpeg writes a temporary sibling of ``path`` (:func:`ipp_bench.data.temporary_sibling`); only
+    ffmpeg writes a temporary sibling of ``path`` (:func:`ipp_bench.core.data.temporary_sibling`); only
     :meth:`close`, after ffmpeg has finished without error, renames it into place. An interrupted or
     failed video (Ctrl-C, SIGTERM, a planner that raised, a full disk) never replaces the file that
     was there: :meth:`abort` stops ffmpeg and removes the temporary file (after SIGKILL it is left
@@ -419,7 +419,7 @@ class H264Writer:
 
         import imageio_ffmpeg
 
-        from ipp_bench.data import temporary_sibling
+        from ipp_bench.core.data import temporary_sibling
 
         self.path = Path(path)
         self.tmp = temporary_sibling(self.path)
@@ -435,7 +435,7 @@ class H264Writer:
                                       start_new_session=True)
 
     def _failed(self, what: str):
-        from ipp_bench.data import OutputWriteError
+        from ipp_bench.core.data import OutputWriteError
 
         try:  # it is ending: let it say why
             self._proc.wait(timeout=10.0)
@@ -480,7 +480,7 @@ class H264Writer:
             os.replace(self.tmp, self.path)
         except OSError as err:
             self._remove_tmp()
-            from ipp_bench.data import OutputWriteError
+            from ipp_bench.core.data import OutputWriteError
 
             raise OutputWriteError(f"cannot write {self.path}: {err.strerror or err}") from None
         finally:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ipp_bench.sensor import rays_on_ground
+from ipp_bench.core.sensor import rays_on_ground
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@
 :meth:`WeedWorld.begin_episode` paints a new ground texture and draws the episode's conditions
 (sun, exposure, white balance, wind, state-estimation errors) from the episode's seed, and
 :meth:`WeedWorld.read_camera` turns the current frame into a sensor read-out: the nominal footprint
-of :class:`~ipp_bench.sensor.Sensor` at the drone's *estimated* position, restricted to the cells the
+of :class:`~ipp_bench.core.sensor.Sensor` at the drone's *estimated* position, restricted to the cells the
 camera really saw, with z the pipeline's estimate of each measurement (cell or binned block) and
 no synthetic noise on top (``SimConfig.measurement = "camera"``, v1). The v0 task keeps its
 behaviour: ideal camera, the sensor model's noise added (``"camera+noise"``), stop-and-go flight.
@@ -22,8 +22,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ipp_bench.config import GridConfig, SensorConfig
-from ipp_bench.sensor import Observation, Sensor, restrict
+from ipp_bench.core.config import GridConfig, SensorConfig
+from ipp_bench.core.sensor import Observation, Sensor, restrict
 from ipp_bench.sim import vision_v0
 from ipp_bench.sim.camera import CameraModel, EpisodeConditions, form_image, motion_blur_px
 from ipp_bench.sim.controller import ControllerGains
@@ -230,7 +230,7 @@ class WeedWorld:
     def __init__(self, grid: GridConfig, sensor: SensorConfig, speed: float = 2.0,
                  cfg: SimConfig = SimConfig(), airframe=None, drones: int = 1) -> None:
         self.grid, self.cfg, self.sensor_cfg = grid, cfg, sensor
-        # one OpenCV thread per process, as for BLAS (ipp_bench._threads): on 2 shared cores a second
+        # one OpenCV thread per process, as for BLAS (ipp_bench.core._threads): on 2 shared cores a second
         # thread only waits for the first; parallelism comes from worker processes
         cv2.setNumThreads(1)
         shipped = QuadrotorParams(camera_fovy_deg=sensor.fov_deg, rotor_model=cfg.rotor_model)

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ipp_bench.config import check_integer, check_number
+from ipp_bench.core.config import check_integer, check_number
 from ipp_bench.policies.features import BASE_NODE_DIM, GAIN_NODE_DIM
 from ipp_bench.policies.network import NetConfig
 from ipp_bench.train.vec import REWARDS, VEC_ENVS

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ipp_bench.data import write_atomically
+from ipp_bench.core.data import write_atomically
 from ipp_bench.policies.network import MASKED_LOGIT, AttentionNet
 
 

@@ -7,12 +7,12 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ipp_bench.data import write_atomically
+from ipp_bench.core.data import write_atomically
 
 
 def write_text_atomic(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` through a temporary file beside it: an interrupt or a full disk
-    leaves the old file and no temporary one (:func:`ipp_bench.data.write_atomically`)."""
+    leaves the old file and no temporary one (:func:`ipp_bench.core.data.write_atomically`)."""
     write_atomically(path, lambda tmp: tmp.write_text(text))
 
 

@@ -20,7 +20,7 @@ from typing import Any
 import torch
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
-from ipp_bench.data import write_atomically
+from ipp_bench.core.data import write_atomically
 from ipp_bench.envs.registry import make_env, parse_overrides
 from ipp_bench.policies.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from ipp_bench.train.archive import load_objects

@@ -32,8 +32,8 @@ from typing import Any
 
 import torch
 
-from ipp_bench._threads import available_cpus, keep_freed_memory
-from ipp_bench.data import OutputWriteError, check_output_dir
+from ipp_bench.core._threads import available_cpus, keep_freed_memory
+from ipp_bench.core.data import OutputWriteError, check_output_dir
 from ipp_bench.train.args import (
     RESUMABLE,
     VAL_SEED0,

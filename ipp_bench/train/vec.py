@@ -37,7 +37,7 @@ from gymnasium import spaces
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper
 
-from ipp_bench._threads import available_cpus
+from ipp_bench.core._threads import available_cpus
 
 VEC_ENVS = ("subproc", "dummy")
 

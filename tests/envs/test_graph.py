@@ -130,8 +130,8 @@ def test_the_core_clock_gives_the_roadmap_edge_costs_bit_for_bit(task):
     """The masks and look-ahead planners once read ``roadmap.costs``; they now ask the mission.
     On every registered task's roadmap the core mission's durations are those costs, bit for bit
     (so the committed baselines do not move)."""
-    from ipp_bench.mission import Mission
-    from ipp_bench.roadmap import Roadmap
+    from ipp_bench.core.mission import Mission
+    from ipp_bench.core.roadmap import Roadmap
 
     cfg = envs.task_spec(task).config
     rm = Roadmap.build(cfg.grid, cfg.graph, cfg.mission.speed)

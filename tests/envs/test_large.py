@@ -9,8 +9,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from ipp_bench import envs
-from ipp_bench.belief import GPBelief
-from ipp_bench.belief_window import WindowBelief
+from ipp_bench.core.belief import GPBelief
+from ipp_bench.core.belief_window import WindowBelief
 from ipp_bench.envs import tagged
 
 EVAL, TRAIN = "ipp_bench/Hotspots128Eval-v2", "ipp_bench/Hotspots128Train-v2"
@@ -42,7 +42,7 @@ def test_registered_tagged_large_not_benchmark():
 
 def test_the_budget_keeps_hotspots30s_share_of_the_map():
     """A lawnmower at the lowest level covers the same share of the map in the budget (66 % on 30 x 30)."""
-    from ipp_bench.sensor import Sensor
+    from ipp_bench.core.sensor import Sensor
 
     def share(task):
         c = envs.TASKS[task].config
@@ -81,7 +81,7 @@ def test_a_greedy_episode_runs_and_the_dense_only_planners_refuse(env):
 
 
 def test_the_window_belief_is_checked_by_its_own_estimate():
-    from ipp_bench.limits import ARRAY_LIMIT_BYTES, check_sizes, window_belief_bytes
+    from ipp_bench.core.limits import ARRAY_LIMIT_BYTES, check_sizes, window_belief_bytes
 
     cfg = envs.TASKS[EVAL].config
     check_sizes(cfg)

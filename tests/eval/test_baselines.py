@@ -40,12 +40,12 @@ from pathlib import Path
 
 import pytest
 
+from ipp_bench.core.mission import REPORT_KEYS
 from ipp_bench.envs import task_config, task_spec
 from ipp_bench.eval.executors import make_executor
 from ipp_bench.eval.leaderboard import run_job
 from ipp_bench.eval.plan import config_differences, make_plan, task_config_record
 from ipp_bench.eval.results import RESULTS_CSV, RUN_JSON, read_results
-from ipp_bench.mission import REPORT_KEYS
 from ipp_bench.planners import parse_spec
 
 REPO = Path(__file__).resolve().parents[2]

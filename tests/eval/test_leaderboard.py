@@ -199,7 +199,7 @@ def test_an_older_run_json_with_config_digests_is_read(reference_copy):
     """run.json files before field-by-field configs held a digest per task, of the config of their
     time (without the fields added since): one that matches is kept and rewritten; one that does
     not is refused."""
-    from ipp_bench.config import field_owners
+    from ipp_bench.core.config import field_owners
     from ipp_bench.eval.plan import DIGEST_ERA_ADDED_FIELDS, _config_digest
 
     added_last = DIGEST_ERA_ADDED_FIELDS[-1]

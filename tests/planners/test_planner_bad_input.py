@@ -11,8 +11,8 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from ipp_bench._threads import available_cpus
 from ipp_bench.cli import main
+from ipp_bench.core._threads import available_cpus
 from ipp_bench.envs import make_env
 from ipp_bench.planners import RobotView, TruthView, make_planner, parse_spec, split_specs, view_for
 from ipp_bench.planners.base import GraphPlanner

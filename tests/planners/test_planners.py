@@ -215,9 +215,9 @@ def test_tasks_that_share_a_roadmap_keep_their_own_legs_and_clocks():
     down): greedy's leg read-outs and the far targets' flight-time graph, cached per roadmap, are each
     task's own in one process, whichever task came first (a cache keyed by the roadmap and an object's
     ``id`` served a freed object's entries to its successor at the same address)."""
-    from ipp_bench.gains import duration_graph
+    from ipp_bench.core.gains import duration_graph
+    from ipp_bench.core.sensor import stack
     from ipp_bench.planners.greedy import leg_batch
-    from ipp_bench.sensor import stack
 
     grid, twin = make_env("ipp_bench/Grid15Eval-v1"), make_env("ipp_bench/Weed15Twin-v1")
     grid.reset(seed=0)
@@ -241,7 +241,7 @@ def test_tasks_that_share_a_roadmap_keep_their_own_legs_and_clocks():
 
 
 def test_first_best_breaks_ties_by_index_and_keeps_real_gaps():
-    from ipp_bench.gains import TIE_RTOL, beats, first_best
+    from ipp_bench.core.gains import TIE_RTOL, beats, first_best
 
     one = 0.7985626607787054
     assert first_best([one, np.nextafter(one, 2.0), -np.inf]) == 0  # a tie up to the last bits

@@ -17,8 +17,8 @@ import pytest
 
 import ipp_bench.planners as planners
 from ipp_bench.cli import main
+from ipp_bench.core.gains import first_best
 from ipp_bench.envs import make_env
-from ipp_bench.gains import first_best
 from ipp_bench.planners.episode import fly_episode, start_episode
 from ipp_bench.planners.greedy import GreedyPlanner
 

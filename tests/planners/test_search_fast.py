@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ipp_bench.core.sensor import Sensor
 from ipp_bench.envs import make_env
 from ipp_bench.planners import _search_kernels, make_planner, view_for
-from ipp_bench.sensor import Sensor
 
 TASKS_15 = ["ipp_bench/Grid15Eval-v1", "ipp_bench/Hotspots15Eval-v2"]
 TASKS_30 = ["ipp_bench/Grid30Eval-v1", "ipp_bench/Hotspots30Eval-v2"]

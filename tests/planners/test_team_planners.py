@@ -4,8 +4,8 @@ episode loop (determinism, every single-UAV planner per UAV) and the refusals.""
 import numpy as np
 import pytest
 
-from ipp_bench import metrics as M
-from ipp_bench.belief import GPBelief
+from ipp_bench.core import metrics as M
+from ipp_bench.core.belief import GPBelief
 from ipp_bench.envs.registry import make_env
 from ipp_bench.planners import make_planner, view_for
 from ipp_bench.planners.episode import fly_episode, fly_team_episode

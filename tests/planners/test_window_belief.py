@@ -6,11 +6,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from ipp_bench.belief import GPBelief, LegBatch, trace_reductions
-from ipp_bench.belief_window import WindowBelief
+from ipp_bench.core.belief import GPBelief, LegBatch, trace_reductions
+from ipp_bench.core.belief_window import WindowBelief
+from ipp_bench.core.sensor import stack
 from ipp_bench.planners import RobotView
 from ipp_bench.planners import greedy as G
-from ipp_bench.sensor import stack
 
 TASK = "ipp_bench/Hotspots30Eval-v2"
 

@@ -6,7 +6,7 @@ import pytest
 gym = pytest.importorskip("gymnasium")
 
 import ipp_bench.envs  # noqa: F401
-from ipp_bench.gains import LookGain
+from ipp_bench.core.gains import LookGain
 from ipp_bench.planners import make_planner
 from ipp_bench.planners.base import RobotView
 from ipp_bench.policies.features import add_gain_feature, gain_feature_wrapper
@@ -99,7 +99,7 @@ def test_invariant_network_runs_as_a_planner_on_every_size(tmp_path):
 
 
 def test_camera_error_states_feed_the_planners_feature_and_white_noise_tasks_keep_theirs():
-    from ipp_bench.belief import error_states
+    from ipp_bench.core.belief import error_states
 
     twin = gym.make("ipp_bench/Weed15Twin-v1").unwrapped
     obs, _ = twin.reset(seed=1)

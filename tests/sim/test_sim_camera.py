@@ -5,9 +5,9 @@ import pytest
 
 pytest.importorskip("mujoco")
 
-from ipp_bench.config import GridConfig, SensorConfig  # noqa: E402
-from ipp_bench.fields import make_field  # noqa: E402
-from ipp_bench.sensor import Sensor  # noqa: E402
+from ipp_bench.core.config import GridConfig, SensorConfig  # noqa: E402
+from ipp_bench.core.fields import make_field  # noqa: E402
+from ipp_bench.core.sensor import Sensor  # noqa: E402
 from ipp_bench.sim import gl  # noqa: E402
 from ipp_bench.sim.render import SceneRenderer  # noqa: E402
 from ipp_bench.sim.texture import TexturePalette, weed_mask, weed_texture  # noqa: E402

@@ -8,7 +8,7 @@ from gymnasium.utils.env_checker import check_env
 pytest.importorskip("mujoco")
 
 import ipp_bench.envs as envs  # noqa: E402
-from ipp_bench.mission import BudgetExceededError  # noqa: E402
+from ipp_bench.core.mission import BudgetExceededError  # noqa: E402
 from ipp_bench.planners.episode import fly_episode  # noqa: E402
 from ipp_bench.sim.env import MuJoCoIPPEnv  # noqa: E402
 from ipp_bench.sim.mission import MuJoCoMission  # noqa: E402

@@ -113,7 +113,7 @@ def test_leg_reference_profile():
 
 
 def test_exported_airframe_matches_the_code():
-    from ipp_bench.data import data_dir
+    from ipp_bench.core.data import data_dir
     from ipp_bench.sim.quadrotor import airframe_xml
 
     shipped = mujoco.MjModel.from_xml_path(str(data_dir("assets") / "quadrotor.xml"))

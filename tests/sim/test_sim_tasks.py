@@ -40,7 +40,7 @@ def test_overrides_by_name_reach_the_simulation():
 
 
 def test_every_sim_field_name_is_unique_and_not_a_config_field():
-    from ipp_bench.config import field_owners
+    from ipp_bench.core.config import field_owners
 
     assert not set(sim_field_owners()) & set(field_owners())
 

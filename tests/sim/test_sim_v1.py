@@ -10,7 +10,7 @@ from gymnasium.utils.env_checker import check_env
 pytest.importorskip("mujoco")
 
 import ipp_bench.envs as envs  # noqa: E402
-from ipp_bench.belief import (
+from ipp_bench.core.belief import (
     GPBelief,  # noqa: E402
     normalised_innovation,  # noqa: E402
 )

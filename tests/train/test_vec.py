@@ -12,7 +12,7 @@ from sb3_contrib import MaskablePPO
 from stable_baselines3.common.monitor import Monitor
 
 import ipp_bench.envs  # noqa: F401
-from ipp_bench._threads import keep_freed_memory
+from ipp_bench.core._threads import keep_freed_memory
 from ipp_bench.policies.sb3 import AttentionPolicy
 from ipp_bench.train.vec import ShardedSubprocVecEnv, make_vec_env, roadmap_pos_encoding
 

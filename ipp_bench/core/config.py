@@ -20,11 +20,11 @@ FIELD_FAMILIES = ("bernoulli", "regions", "weed_patches")
 #: less than this still fits, a record at most this after a report time counts "at or before" it
 TIME_TOL_S = 1e-9
 SAMPLING_MODES = ("grid", "uniform")
-#: the field beliefs a task can hold: "dense", :class:`~ipp_bench.belief.GPBelief` (the n x n
-#: covariance; every task up to 30 x 30), "window", :class:`~ipp_bench.belief_window.WindowBelief`
+#: the field beliefs a task can hold: "dense", :class:`~ipp_bench.core.belief.GPBelief` (the n x n
+#: covariance; every task up to 30 x 30), "window", :class:`~ipp_bench.core.belief_window.WindowBelief`
 #: (the covariance within a window of cells; large maps)
 BELIEF_KINDS = ("dense", "window")
-#: every field family has at least one cell at or above this value (``ipp_bench.fields``), so an
+#: every field family has at least one cell at or above this value (``ipp_bench.core.fields``), so an
 #: evaluation ROI ``truth >= mu_th`` with ``mu_th`` up to it is never empty
 FIELD_GUARANTEED_MAX = 0.5
 
@@ -190,7 +190,7 @@ class SensorConfig:
     binning_noise_exponent: float = 0.0  # [-] e in f^e: noise growth of a binned read-out
     # the camera's persistent error: a per-cell error that every look at the same resolution factor
     # repeats (the same texture misread the same way), carried by the belief as one extra state per
-    # cell and factor (:class:`~ipp_bench.belief.PersistentErrorBelief`); 0: none (v0, graph tasks)
+    # cell and factor (:class:`~ipp_bench.core.belief.PersistentErrorBelief`); 0: none (v0, graph tasks)
     persistent_var: float = 0.0  # [field units^2] per cell, full-resolution read-outs (f = 1), at t = 0.5
     persistent_var_binned: float = 0.0  # [field units^2] per cell, binned read-outs (f = binning), at t = 0.5
     persistent_corr: float = 0.0  # [-] correlation of a cell's persistent errors at the two factors
@@ -232,7 +232,8 @@ class SensorConfig:
 
     @property
     def camera_error_states(self) -> bool:
-        """Whether the belief carries the camera's error model (:class:`~ipp_bench.belief.PersistentErrorBelief`)."""
+        """Whether the belief carries the camera's error model
+        (:class:`~ipp_bench.core.belief.PersistentErrorBelief`)."""
         return self.persistent_var > 0 or self.persistent_var_binned > 0 or self.noise_floor < 1.0
 
 

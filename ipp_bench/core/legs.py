@@ -2,7 +2,7 @@
 
 :class:`ContinuousLeg` and :func:`continuous_durations` are the reference the MuJoCo drone flies
 (``ipp_bench.sim.controller`` re-exports them; the flight follows them under the cascaded
-controller) and the clock of the graph twin (:mod:`ipp_bench.twin`), which flies the same
+controller) and the clock of the graph twin (:mod:`ipp_bench.core.twin`), which flies the same
 reference without physics. No MuJoCo in here.
 """
 

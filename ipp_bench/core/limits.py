@@ -1,6 +1,6 @@
 """Size limits of an IPP problem, checked from its config before anything is built.
 
-Every field of :mod:`ipp_bench.config` is valid on its own; some combinations are not affordable:
+Every field of :mod:`ipp_bench.core.config` is valid on its own; some combinations are not affordable:
 a map so large that the roadmap's positional encoding or the dense belief's covariance does not
 fit in memory, a measurement spacing or altitude range that puts hundreds of thousands of
 measurements into one leg's update, or a budget and speed that make an episode of millions of
@@ -12,7 +12,7 @@ The limits are far above every task of the suite (the largest, 30 x 30 cells, ne
 its Laplacian and at most a few MiB per leg update) and well below what a workstation has. A
 128 x 128 map passes the roadmap and encoding check (the sparse eigensolver, ~0.2 GB)
 and is refused by the dense belief's, which names the scalable belief,
-:class:`ipp_bench.belief_window.WindowBelief`; a task that holds the window belief
+:class:`ipp_bench.core.belief_window.WindowBelief`; a task that holds the window belief
 (``gp.belief = "window"``) is checked against the window belief's memory instead.
 """
 
@@ -61,7 +61,7 @@ def roadmap_nodes(config: IPPConfig) -> int:
 
 def belief_states(config: IPPConfig) -> int:
     """States of the belief: a cell each, plus a persistent camera error per cell and resolution
-    factor when the task models it (:class:`~ipp_bench.belief.PersistentErrorBelief`)."""
+    factor when the task models it (:class:`~ipp_bench.core.belief.PersistentErrorBelief`)."""
     n = config.grid.n_cells
     s = config.sensor
     if not s.camera_error_states:
@@ -86,7 +86,7 @@ def leg_update_rows(config: IPPConfig) -> tuple[int, float, int]:
 def encoding_bytes(config: IPPConfig) -> int:
     """[bytes] the roadmap and its positional encoding at their peak, by the solver the roadmap uses.
 
-    Up to :data:`~ipp_bench.roadmap.DENSE_ENCODING_MAX_NODES` nodes, the dense N x N Laplacian's arrays; above
+    Up to :data:`~ipp_bench.core.roadmap.DENSE_ENCODING_MAX_NODES` nodes, the dense N x N Laplacian's arrays; above
     it the sparse solver: its LU (an empirical fill, see ``_LU_FILL``), ARPACK's 2 pe_dim + 1 Lanczos
     vectors, the k-NN arrays and a fixed workspace. The estimate is 5-50 % above the measured peak
     (``benchmarks/bench_roadmap_scale.py``) on roadmaps of 40 x 40 to 256 x 256 cells, 2 and 3
@@ -103,12 +103,12 @@ def _encoding_bytes(nodes: int, k: int, dim: int) -> int:
 
 
 def dense_belief_bytes(config: IPPConfig) -> int:
-    """[bytes] building the dense belief (:class:`~ipp_bench.belief.GPBelief`): its prior's peak."""
+    """[bytes] building the dense belief (:class:`~ipp_bench.core.belief.GPBelief`): its prior's peak."""
     return DENSE_BELIEF_ARRAYS * belief_states(config) ** 2 * _FLOAT
 
 
 def window_belief_bytes(config: IPPConfig) -> int:
-    """[bytes] the window belief (:class:`~ipp_bench.belief_window.WindowBelief`) at its largest: the
+    """[bytes] the window belief (:class:`~ipp_bench.core.belief_window.WindowBelief`) at its largest: the
     band of n (2w + 1)^2 floats and the mean, the downdate's scratch for the largest fused group
     (``group_span`` + 2w cells square, its Gram matrix) and the cache of window masks at that size.
     95 MB measured at 128 x 128, w = 12 (``benchmarks/bench_belief_scale.py``); this gives 110 MB."""
@@ -160,7 +160,7 @@ def check_sizes(config: IPPConfig) -> None:
             f"grid.rows x grid.cols = {grid.rows} x {grid.cols} cells is too large for the dense belief: its "
             f"covariance of {states} states needs {_gib(states**2 * _FLOAT)}, {_gib(need)} while its prior is built "
             f"(limit {_gib(ARRAY_LIMIT_BYTES)}, at most {most} states); a map this large needs the scalable belief "
-            "ipp_bench.belief_window.WindowBelief: set gp.belief = 'window' (--env belief=window)")
+            "ipp_bench.core.belief_window.WindowBelief: set gp.belief = 'window' (--env belief=window)")
     rows, longest, cells = leg_update_rows(config)
     need = rows**2 * _FLOAT
     if need > ARRAY_LIMIT_BYTES:
@@ -189,7 +189,7 @@ FIT_ARRAYS = 5
 
 
 def fit_prior_bytes(config: IPPConfig, maps: int) -> int:
-    """[bytes] fitting the prior of ``config``'s field family on ``maps`` maps (:mod:`ipp_bench.gp_fit`):
+    """[bytes] fitting the prior of ``config``'s field family on ``maps`` maps (:mod:`ipp_bench.core.gp_fit`):
     the likelihood's n x n arrays and three copies of the maps."""
     n = config.grid.n_cells
     return FIT_ARRAYS * n**2 * _FLOAT + 3 * int(maps) * n * _FLOAT

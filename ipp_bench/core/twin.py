@@ -1,7 +1,7 @@
 """The graph twin's sensor: the deployment camera's error, drawn instead of rendered.
 
-:class:`CameraErrorLegs` is a mission :class:`~ipp_bench.mission.Platform` that flies the
-deployment's own reference legs (:class:`~ipp_bench.legs.ContinuousLeg`: velocity-continuous
+:class:`CameraErrorLegs` is a mission :class:`~ipp_bench.core.mission.Platform` that flies the
+deployment's own reference legs (:class:`~ipp_bench.core.legs.ContinuousLeg`: velocity-continuous
 through waypoints, the same clock as ``MuJoCoWeed15-v1``'s, without physics, wind or estimator) and
 draws its read-outs from the error model that ``python -m ipp_bench.sim.calibrate`` fits to the
 MuJoCo camera, so that planners and training see the deployment's sensor without MuJoCo. The
@@ -12,7 +12,7 @@ The error model:
 
 * a persistent error per cell, resolution factor and episode, drawn once at the start:
   ``e_f,c = sqrt(s_f phi(x_c)) u_f,c`` with s_f the task's ``persistent_var`` /
-  ``persistent_var_binned``, phi(t) = :func:`~ipp_bench.belief.value_scale` (``noise_floor``) at
+  ``persistent_var_binned``, phi(t) = :func:`~ipp_bench.core.belief.value_scale` (``noise_floor``) at
   the cell's true value x_c (a cell with nothing to misread errs less), corr(u_1,c, u_2,c) =
   ``persistent_corr``, and each u_f a unit-variance Gaussian field over the cells with a squared-
   exponential correlation whose value between edge-neighbours is ``neighbour_corr`` (the task's
@@ -26,7 +26,7 @@ The error model:
   drops them: 25-34 % of the rows of a 14 m read-out, 2-6 % at 8 m).
 
 A row measures ``z = w . (x + e_f) + v``. The belief is the task's (the deployment's model,
-:class:`~ipp_bench.belief.PersistentErrorBelief`), which models the same correlation: on the twin the
+:class:`~ipp_bench.core.belief.PersistentErrorBelief`), which models the same correlation: on the twin the
 belief is the sensor's own model, up to the value t at which each cell's error scale is plugged in.
 """
 

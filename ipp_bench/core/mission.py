@@ -11,7 +11,7 @@ Seams: a mission keeps the bookkeeping (clock, budget, report times, path, histo
 takes two parts. A :class:`Platform` flies a leg and returns its read-outs (:class:`StraightLegs`
 here: the graph's straight legs at the mission speed, read by the sensor model; the MuJoCo
 deployment's stop-and-go and continuous flights in ``ipp_bench.sim.mission``). A belief model
-with one ``update(observations, values)`` (:func:`ipp_bench.belief.belief_model`: white noise or
+with one ``update(observations, values)`` (:func:`ipp_bench.core.belief.belief_model`: white noise or
 the camera-error states) keeps ``belief``, the field belief that planners and metrics read.
 
 The mission owns the clock: :meth:`Mission.leg_durations` is the one rule of what a straight leg

@@ -126,7 +126,7 @@ class TeamConfig:
 
 
 class MemberMission(Mission):
-    """One UAV of a team: a :class:`~ipp_bench.mission.Mission` whose clock, position, budget, noise
+    """One UAV of a team: a :class:`~ipp_bench.core.mission.Mission` whose clock, position, budget, noise
     stream and platform are its own, whose belief is the team's, and whose read-outs go to the team
     (:meth:`TeamMission.take`) instead of into the belief. Its own ``history`` is never updated:
     the team's metrics are the :class:`TeamMission`'s."""

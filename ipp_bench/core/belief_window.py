@@ -1,10 +1,10 @@
 """A GP belief for large grids: the covariance kept within a window, updated locally.
 
-The dense :class:`~ipp_bench.belief.GPBelief` stores the n x n covariance P: 2 GB at 128 x 128
+The dense :class:`~ipp_bench.core.belief.GPBelief` stores the n x n covariance P: 2 GB at 128 x 128
 cells, and a Kalman update costs O(n m q). The Matern 3/2 prior decays with distance (at 3.6
 length scales the correlation is 3 %, at 5 it is 0.4 %), and conditioning on measurements makes
 posterior correlations decay faster still. :class:`WindowBelief` keeps the same model, the same
-prior and the same Kalman update (paper eqs. 2-3, :func:`~ipp_bench.belief.gain_factor`'s
+prior and the same Kalman update (paper eqs. 2-3, :func:`~ipp_bench.core.belief.gain_factor`'s
 symbols), with one approximation: P is stored only between cells at most ``window`` cells apart
 along both axes (a (2w + 1) x (2w + 1) stencil around every cell); entries beyond it are taken as
 0 in an update and never written.
@@ -55,7 +55,7 @@ def task_window(grid, gp) -> int:
 
 
 def prior_belief(grid, gp) -> GPBelief | WindowBelief:
-    """The prior a task's belief starts from, by ``gp.belief``: the dense :class:`~ipp_bench.belief.GPBelief`
+    """The prior a task's belief starts from, by ``gp.belief``: the dense :class:`~ipp_bench.core.belief.GPBelief`
     (``"dense"``) or the :class:`WindowBelief` (``"window"``). The one place the choice is made."""
     if gp.belief == "window":
         return WindowBelief.prior(grid, gp)
@@ -95,7 +95,7 @@ class WindowBelief:
                   length_scale: float = 3.67, signal_variance: float = 1.82,
                   prior_mean: float = 0.5, nugget: float = 0.0,
                   window: int | None = None, group_span: int = DEFAULT_GROUP_SPAN) -> WindowBelief:
-        """The prior of :meth:`GPBelief.from_grid <ipp_bench.belief.GPBelief.from_grid>` (Matern 3/2
+        """The prior of :meth:`GPBelief.from_grid <ipp_bench.core.belief.GPBelief.from_grid>` (Matern 3/2
         plus ``nugget`` on the diagonal) within the window ``window`` [cells] (default
         :func:`window_for` the length scale)."""
         rows, cols = (int(s) for s in shape)
@@ -113,7 +113,7 @@ class WindowBelief:
 
     @classmethod
     def prior(cls, grid, gp, window: int | None = None) -> WindowBelief:
-        """The prior of a :class:`~ipp_bench.config.GridConfig` and :class:`~ipp_bench.config.GPConfig`,
+        """The prior of a :class:`~ipp_bench.core.config.GridConfig` and :class:`~ipp_bench.core.config.GPConfig`,
         within ``window`` [cells] (default: :func:`task_window`, the config's)."""
         return cls.from_grid((grid.rows, grid.cols), grid.resolution, gp.length_scale,
                              gp.signal_variance, gp.prior_mean, gp.nugget,
@@ -158,7 +158,7 @@ class WindowBelief:
     # -- the update ----------------------------------------------------------------------------
     def update_local(self, cells: np.ndarray, W: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         """Kalman update with ``z = W f[cells] + v``, ``v ~ N(0, R)`` (as :meth:`GPBelief.update_local
-        <ipp_bench.belief.GPBelief.update_local>`).
+        <ipp_bench.core.belief.GPBelief.update_local>`).
 
         Args:
             cells: (q,) flat indices of the cells the rows touch.
@@ -313,11 +313,11 @@ class WindowBelief:
 
     def trace_reductions(self, legs, roi: np.ndarray) -> np.ndarray:
         """For every leg: Tr(P - P+) over the cells ``roi`` (bool mask (n,)), each leg's rows fused as
-        one batch; 0 for legs that see nothing. :func:`ipp_bench.belief.trace_reductions` on the
+        one batch; 0 for legs that see nothing. :func:`ipp_bench.core.belief.trace_reductions` on the
         windowed covariance.
 
         Args:
-            legs: a :class:`~ipp_bench.belief.LegBatch`, or a sequence of ``(cells, W, var)`` or None
+            legs: a :class:`~ipp_bench.core.belief.LegBatch`, or a sequence of ``(cells, W, var)`` or None
                 per leg (what ``LegBatch`` is built from: on a large map the batch's padded
                 (legs, rows, union of cells) weights grow with the union, the list does not).
             roi: (n,) bool.

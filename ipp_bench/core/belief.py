@@ -161,7 +161,7 @@ class GPBelief:
 
     @classmethod
     def prior(cls, grid, gp) -> GPBelief:
-        """The prior of a :class:`~ipp_bench.config.GridConfig` and :class:`~ipp_bench.config.GPConfig`."""
+        """The prior of a :class:`~ipp_bench.core.config.GridConfig` and :class:`~ipp_bench.core.config.GPConfig`."""
         return cls.from_grid((grid.rows, grid.cols), grid.resolution, gp.length_scale,
                              gp.signal_variance, gp.prior_mean, gp.nugget)
 
@@ -233,7 +233,7 @@ class GPBelief:
         """For every leg: Tr(P - P+) over the cells ``roi`` (bool mask (n,)), each leg's rows fused as
         one batch; 0 for legs that see nothing: :func:`trace_reductions` on the covariance. The
         look-gain method both beliefs have (:meth:`WindowBelief.trace_reductions
-        <ipp_bench.belief_window.WindowBelief.trace_reductions>`), so planners need not ask which.
+        <ipp_bench.core.belief_window.WindowBelief.trace_reductions>`), so planners need not ask which.
 
         Args:
             legs: a :class:`LegBatch`, or a sequence of ``(cells, W, var)`` or None per leg (batched here).
@@ -251,7 +251,7 @@ class PredictedBelief:
 
     Args:
         belief: the belief now.
-        observations: the read-outs to come (:class:`~ipp_bench.sensor.Observation`), at least one.
+        observations: the read-outs to come (:class:`~ipp_bench.core.sensor.Observation`), at least one.
     """
 
     def __init__(self, belief: GPBelief, observations) -> None:
@@ -308,7 +308,7 @@ class PersistentErrorBelief:
     ``persistent_var_binned``), phi(t) = :func:`value_scale` (``noise_floor``, a cell with nothing to
     misread errs less), and u a unit-variance Gaussian field, independent of x, with
     ``corr(u_f,c, u_g,c') = C_cc' rho_fg``: C the spatial correlation r^(d^2) of
-    :func:`~ipp_bench.sensor.persistent_correlation` (``persistent_neighbour_corr`` = r, so the cells of
+    :func:`~ipp_bench.core.sensor.persistent_correlation` (``persistent_neighbour_corr`` = r, so the cells of
     a binned block share much of their error; the identity for r = 0) and rho_fg = 1 for f = g, else
     ``persistent_corr``. t_c is plugged in from the data: the value of the row that first saw the cell.
 
@@ -323,7 +323,7 @@ class PersistentErrorBelief:
 
     Args:
         field: the prior belief over the field (n cells, ``field.shape`` its grid); updated in place.
-        sensor: the :class:`~ipp_bench.config.SensorConfig` with the camera's error constants.
+        sensor: the :class:`~ipp_bench.core.config.SensorConfig` with the camera's error constants.
     """
 
     def __init__(self, field: GPBelief, sensor):
@@ -458,7 +458,7 @@ def belief_model(field: GPBelief, sensor) -> WhiteNoiseBelief | PersistentErrorB
 
 
 def error_states(mission) -> PersistentErrorBelief | None:
-    """The belief model of ``mission`` (a :class:`~ipp_bench.mission.Mission`) if it carries the camera's
+    """The belief model of ``mission`` (a :class:`~ipp_bench.core.mission.Mission`) if it carries the camera's
     repeated error as states (:class:`PersistentErrorBelief`: the deployment and its twin), else None
     (white read-out noise)."""
     model = getattr(mission, "belief_model", None)

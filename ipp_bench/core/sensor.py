@@ -15,7 +15,7 @@ read-out row w then has error w^T e + v, and its variance for one look is
 ``var = f^e a (1 - exp(-b h)) + s_f w^T C w`` (what planners predict with; C the errors' correlation
 over the row's cells, :func:`persistent_correlation`, so w^T C w = sum(w^2) for independent cells and
 a binned 2 x 2 block keeps (1 + 2 r + r^2) / 4 of a cell's variance, 0.63 at r = 0.59); ``persistent`` is
-the second term, which :class:`~ipp_bench.belief.PersistentErrorBelief` carries as states instead of
+the second term, which :class:`~ipp_bench.core.belief.PersistentErrorBelief` carries as states instead of
 as noise, so that repeated looks are not taken as independent. :meth:`Sensor.measure` (the graph
 tasks' simulated read-out) draws independent noise of variance ``var`` at every look: only the
 MuJoCo camera repeats its error.

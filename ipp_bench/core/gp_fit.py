@@ -123,7 +123,7 @@ def fit_prior(config: IPPConfig, maps: int = DEFAULT_MAPS, seed: int = FIT_SEED,
     mean is the task's, or with ``fit_mean`` fitted too (profiled: the GLS mean).
 
     Raises:
-        ValueError: the map is too large for the fit's n x n arrays (:func:`ipp_bench.limits.check_fit_size`).
+        ValueError: the map is too large for the fit's n x n arrays (:func:`ipp_bench.core.limits.check_fit_size`).
     """
     from .limits import check_fit_size
 

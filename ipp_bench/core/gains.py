@@ -111,8 +111,8 @@ class LookGain:
     def __call__(self, variance: np.ndarray, roi: np.ndarray, errors: Any = None) -> np.ndarray:
         """(N,) float32: 10 x predicted relative ROI trace reduction of one look from each node.
 
-        ``errors``: the mission's :class:`~ipp_bench.belief.PersistentErrorBelief` where the task models
-        the camera's repeated error (:func:`~ipp_bench.belief.error_states`), else None (white read-out
+        ``errors``: the mission's :class:`~ipp_bench.core.belief.PersistentErrorBelief` where the task models
+        the camera's repeated error (:func:`~ipp_bench.core.belief.error_states`), else None (white read-out
         noise, the formula of the module docstring). With it, a look at cell c measures y_c = x_c + d_c u_c
         (d_c u_c the persistent error, ``errors.sd``) plus white noise, and the formula reads the augmented
         state's marginals: a read-out j's block is ``S_j = sum_c w_c q_c`` with q_c^2 = Var(y_c), and each
@@ -169,7 +169,7 @@ _LOOK_GAINS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 class LookBatch:
     """Single read-outs (one per target node), each on its own cells, padded for batched algebra.
 
-    Unlike :class:`~ipp_bench.belief.LegBatch` (one union of cells for all legs, right for the
+    Unlike :class:`~ipp_bench.core.belief.LegBatch` (one union of cells for all legs, right for the
     neighbours of one node), each look keeps its own few cells, so looks spread over the whole map
     cost what their own cells cost.
     """
@@ -213,7 +213,7 @@ _GRAPHS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 def duration_graph(view: Any) -> sparse.csr_matrix:
     """(N, N) sparse matrix of the roadmap's legs weighted by their flight time [s] by the mission's
     clock (what the quickest roadmap path to a target costs), whatever the drone's state
-    (:meth:`~ipp_bench.mission.Mission.static_leg_durations`); built once per roadmap and mission
+    (:meth:`~ipp_bench.core.mission.Mission.static_leg_durations`); built once per roadmap and mission
     constants, so the same whichever decision of whichever episode built it."""
     key = view.static_key()
     cached = _GRAPHS.get(view.roadmap)

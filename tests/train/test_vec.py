@@ -1,6 +1,11 @@
 """The training vec env: positional encoding held by the policy, masks from the observation, and
 environments in worker processes giving the same transitions as in this process."""
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -12,7 +17,6 @@ from sb3_contrib import MaskablePPO
 from stable_baselines3.common.monitor import Monitor
 
 import ipp_bench.envs  # noqa: F401
-from ipp_bench.core._threads import keep_freed_memory
 from ipp_bench.policies.sb3 import AttentionPolicy
 from ipp_bench.train.vec import ShardedSubprocVecEnv, make_vec_env, roadmap_pos_encoding
 
@@ -123,8 +127,36 @@ def test_bad_vec_env_kind_is_refused():
         make_vec_env(_make, 1, "threads")
 
 
-def test_keep_freed_memory_reports_whether_it_applied():
-    assert isinstance(keep_freed_memory(), bool)
+_RSS_AFTER_FREE = """
+import json, os, sys
+import numpy as np
+from ipp_bench.core._threads import keep_freed_memory
+applied = keep_freed_memory() if sys.argv[1] == "keep" else None
+def rss():
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+block = np.ones(64 << 17)  # 64 MiB, every page touched
+held = rss()
+del block
+print(json.dumps({"applied": applied, "released": held - rss()}))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="reads the resident size from /proc (Linux)")
+def test_keep_freed_memory_keeps_a_freed_block_in_the_process():
+    """glibc returns a freed 64 MiB block to the OS at once (it was mmap'ed); after keep_freed_memory
+    the block comes from the heap and stays there for reuse: the resident size does not drop."""
+
+    def run(mode):
+        out = subprocess.run([sys.executable, "-c", _RSS_AFTER_FREE, mode], capture_output=True, text=True,
+                             timeout=60, check=True)
+        return json.loads(out.stdout)
+
+    default, kept = run("default"), run("keep")
+    if not kept["applied"]:
+        pytest.skip("the C library is not glibc: keep_freed_memory changes nothing and says so")
+    assert default["released"] > 48 << 20  # the block went back to the OS
+    assert kept["released"] < 8 << 20  # the block stayed
 
 
 def test_metric_reward_sums_to_the_episodes_report_mean():

@@ -19,6 +19,9 @@ without a traceback, before any episode runs. Ctrl-C ends with one line and exit
 during a leaderboard: 143); a leaderboard keeps its finished episodes and resumes on a rerun. An
 episode that fails part-way (its planner raised, its worker died, a full disk) ends the leaderboard
 with one line naming it and exit status 1; the finished episodes are kept.
+
+Over 400 lines because it holds every subcommand's arguments and their checks; the work itself is
+done by the modules each subcommand calls.
 """
 
 from __future__ import annotations

@@ -164,3 +164,21 @@ def _strongly_connected(edges: dict[str, set[str]]) -> list[list[str]]:
 def test_the_circle_finder_finds_circles():
     assert _strongly_connected({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _strongly_connected({"a": {"b"}, "b": set(), "c": {"c"}}) == []
+
+
+def test_no_module_above_600_lines_and_above_400_only_with_a_reason():
+    """A module of one idea stays short: none above 600 lines, and one above 400 says in its docstring why
+    it is one module ("... over 400 lines ...")."""
+    import ast
+
+    too_long, unexplained = [], []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        text = path.read_text()
+        lines = text.count("\n")
+        name = str(path.relative_to(ROOT))
+        if lines > 600:
+            too_long.append(f"{name} ({lines})")
+        elif lines > 400 and "400 lines" not in (ast.get_docstring(ast.parse(text)) or ""):
+            unexplained.append(f"{name} ({lines})")
+    assert not too_long, f"modules above 600 lines: {too_long}"
+    assert not unexplained, f"modules above 400 lines without a reason in their docstring: {unexplained}"

@@ -1,8 +1,8 @@
 """CPUs and BLAS threading for the many small matrix products of the belief updates.
 
 A Kalman update on a 15 x 15 map multiplies matrices of a few hundred rows: OpenBLAS threads
-only add hand-over cost there, and on a busy 2-core machine they made an env step 10-30x slower
-(8 ms instead of 0.5 ms, measured). ipp-bench therefore runs numpy/scipy BLAS on one thread per
+only add hand-over cost there, and on a busy machine they make an env step many times slower
+(``benchmarks/RESULTS.md``). ipp-bench therefore runs numpy/scipy BLAS on one thread per
 process (parallelism comes from running episodes in parallel). ``IPP_BENCH_BLAS_THREADS=N``
 overrides it; torch's own thread pool is left alone.
 
@@ -59,9 +59,8 @@ def keep_freed_memory() -> bool:
     By default glibc serves every block above a few MB with a fresh ``mmap`` and unmaps it when
     freed, so each large tensor or array costs page faults and the kernel's zeroing of every page
     again. Training makes and frees such tensors many times per step (a (batch, 84, N) attention
-    score tensor is 19 MB at 450 nodes and batch 128, 77 MB at 1800 nodes): measured on the 2
-    cores, one update sample cost 3.9 ms at 1800 nodes with the defaults and 1.7 ms with freed
-    memory kept (``benchmarks/RESULTS.md``, "Training throughput"). The process then holds on to
+    score tensor is 19 MB at 450 nodes and batch 128, 77 MB at 1800 nodes; the cost of an update with
+    and without is in ``benchmarks/RESULTS.md``, "Training throughput"). The process then holds on to
     its peak heap. Returns False, changing nothing, where the C library is not glibc.
     """
     import ctypes

@@ -5,6 +5,9 @@ cells (``z = H f + noise``); each sensor row touches only the cells of one footp
 works on those columns: with ``C = P[:, cells]`` and ``W = H[:, cells]`` the gain costs O(n m q)
 and the covariance downdate ``P -= A A^T`` (``A = C W^T L^-T``, ``L L^T = S``) is symmetric by
 construction. Pure numpy/scipy, float64.
+
+One module on purpose (over 400 lines): the prior, the one Kalman update every belief shares and
+the camera-error belief built on it are one derivation; split, the update's invariants would span files.
 """
 
 from __future__ import annotations
@@ -106,7 +109,7 @@ def trace_reductions_of_rows(rows: np.ndarray, batch: LegBatch, roi: np.ndarray)
 
 
 def downdate_inplace(cov: np.ndarray, A: np.ndarray) -> None:
-    """``cov -= A A^T`` in place with one BLAS gemm (no n x n temporary; 4-5x faster at n = 2500)."""
+    """``cov -= A A^T`` in place with one BLAS gemm (no n x n temporary)."""
     if not cov.flags.c_contiguous:
         raise ValueError("downdate_inplace needs a C-contiguous covariance")
     A = np.asfortranarray(A)

@@ -5,6 +5,9 @@ the value and the valid range, so a wrong ``gym.make(..., **overrides)`` fails a
 how to fix it. Numbers of any numeric type are accepted (``numpy.int64(20)`` for an integer
 field, an int for a float field) and stored as Python numbers; strings and booleans are refused
 where a number is expected. ``IPPConfig.replace(**flat)`` sets fields by name across the sections.
+
+One module on purpose (over 400 lines): every section of a task's configuration with its checks, so
+that ``IPPConfig.replace`` and the task files see one list of fields.
 """
 
 from __future__ import annotations

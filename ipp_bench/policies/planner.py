@@ -14,6 +14,9 @@ A decision is one forward pass of a small network (about 1 ms at 450 nodes): tor
 threads only add hand-over cost there, and they oversubscribe the CPU when the leaderboard runs
 episodes in parallel processes, so the planner sets torch to one thread by default (``threads=0``
 leaves torch's setting alone), as ``ipp_bench.core._threads`` does for BLAS.
+
+One module on purpose (over 400 lines): the planner, its stall guard and its test-time sampling
+share the network's view of a decision state.
 """
 
 from __future__ import annotations

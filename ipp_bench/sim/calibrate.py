@@ -31,6 +31,9 @@ Two measurements, both on calibration episodes disjoint from every evaluation ep
 as ``ipp-bench fit-prior`` does: the camera's error is no longer part of the field) into the task
 file with a comment naming the command. The greedy calibration missions plan with the constants
 the task file holds when the command runs; what they read does not depend on them.
+
+One module on purpose (over 400 lines): the two measurements and the fit that writes them into the
+task file are one procedure with one command line.
 """
 
 from __future__ import annotations

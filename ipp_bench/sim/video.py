@@ -15,6 +15,9 @@ Which planner flies, and the comparison plot, are ``ipp-bench demo``'s business
 
 The same arguments give the same video, frame for frame and byte for byte: physics, rendering,
 sensor noise and planners are seeded, and the encoder runs with a fixed thread count.
+
+One module on purpose (over 400 lines): the frame's panels and the encoder that writes them share
+the frame's layout and the abort on a signal.
 """
 
 from __future__ import annotations

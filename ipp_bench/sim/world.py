@@ -10,6 +10,9 @@ no synthetic noise on top (``SimConfig.measurement = "camera"``, v1). The v0 tas
 behaviour: ideal camera, the sensor model's noise added (``"camera+noise"``), stop-and-go flight.
 ``"truth"`` replaces the camera's values by the ground truth (the ablation that shows the camera
 matters).
+
+One module on purpose (over 400 lines): the scene, the flight and the camera pipeline of one grid
+share the compiled model and the episode's conditions.
 """
 
 from __future__ import annotations

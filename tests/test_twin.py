@@ -37,7 +37,7 @@ def test_a_tilted_frame_misses_the_cells_at_its_edge_on_one_side():
     cols, edge = missed % m.config.grid.cols, cells.max() % m.config.grid.cols
     assert missed.size > 0 and cols.min() > 7  # the frame moved toward -x (by 14 tan 8 deg = 1.97 m)
     assert np.isin(cells[cells % m.config.grid.cols == edge], missed).all()  # the whole +x edge column
-    # the deployment drops 25-34 % of the rows of its 14 m read-outs (docs/camera-error.md):
+    # the deployment drops 25-34 % of the rows of its 14 m read-outs (docs/decisions/camera-error.md):
     # with the twin's tilt spread, about as many
     mt = _mission(0, tilt_sd_deg=4.6)
     rows = [(mt.sensor.observe(p).m, mt.platform._read(mt, [p], [0.0])[0][0]) for _ in range(200)]

@@ -38,7 +38,7 @@ from scipy.linalg import cho_solve, solve_triangular
 from .belief import GPBelief, LegBatch, _as_cov, matern32
 
 WINDOW_LENGTH_SCALES = 4.0  # [-] the window covers this many length scales (prior correlation 0.8 % there;
-# why four: docs/window-belief.md)
+# why four: docs/decisions/window-belief.md)
 DEFAULT_GROUP_SPAN = 8  # [cells] largest bounding box side of the rows fused in one update
 MASK_CACHE = 32  # window masks kept (one per rectangle shape; 0.6 MB each at w = 12)
 

@@ -38,7 +38,7 @@ from ..core.mission import fits_budget
 from ..planners.base import GraphPlanner, RobotView, softmax, stacked_leg, without_level
 
 #: nodes the network attends to by default: all of them up to 30 x 30 (1800), at 128 x 128 (32 768
-#: nodes) the 4096 nearest the UAV, a disc of about 64 m radius (docs/findings.md, ten hectares)
+#: nodes) the 4096 nearest the UAV, a disc of about 64 m radius (docs/decisions/ten-hectares.md)
 DEFAULT_CONTEXT_NODES = 4096
 MIN_CONTEXT_NODES = 64  # [-] a context smaller than this is hardly more than the k neighbours
 CONTEXT_CACHE = 256  # [-] context node sets kept (least recently used dropped), one per current node
@@ -46,7 +46,7 @@ CONTEXT_CACHE = 256  # [-] context node sets kept (least recently used dropped),
 #: (2.7 cells' worth: 1.2 % of it on 15 x 15, 0.3 % on 30 x 30, 0.016 % on 128 x 128) over 4 decisions has
 #: stalled (the network flies back and forth over cells its camera has already pinned, on the deployment
 #: and its twin, or over cells it has mapped, late in a hotspot mission); chosen on validation episodes
-#: (why these two numbers: docs/stall-guard.md)
+#: (why these two numbers: docs/decisions/stall-guard.md)
 STALL_LEGS = 4
 STALL_CELLS = 2.7
 MAX_SAMPLES = 256  # [-] imagined trajectories per decision, at most
@@ -83,7 +83,7 @@ class AttentionConfig:
     # avoid_from_s on, the planner never picks a neighbour at altitude avoid_altitude [m] while another
     # neighbour is affordable (the network, the stall guard and imagined flights alike). 0 = off. For
     # roadmaps of three flight levels, where a network may keep flying the lowest level late in a hotspot
-    # mission and lose to the middle one there (docs/roadmap.md, docs/training-variants.md).
+    # mission and lose to the middle one there (docs/decisions/roadmap.md, docs/decisions/training-variants.md).
     avoid_altitude: float = 0.0
     avoid_from_s: float = 0.0  # [s] mission time from which avoid_altitude holds, >= 0
 
@@ -444,7 +444,7 @@ class AttentionPlanner(GraphPlanner):
 
         A camera that repeats its error (the deployment, its twin) pins the cells it has seen: another
         look there changes nothing, and a network trained where every look still helps can then fly back
-        and forth between two such nodes until the budget is spent (``docs/stall-guard.md``). The guard
+        and forth between two such nodes until the budget is spent (``docs/decisions/stall-guard.md``). The guard
         sees it in the belief (its total variance stopped falling) and flies the quickest roadmap path to
         the node whose one look gains most per second of flight (the network's look-gain input over the
         flight time, :func:`~ipp_bench.core.gains.best_far_target`), then resets its window and hands back to

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -85,6 +86,7 @@ def load_checkpoint(path: str | Path | None = None,
         raise CheckpointError(
             f"checkpoint {path} is an SB3 model archive; expected {expected}. Export one with "
             f"`ipp-bench train --export {path}` (writes {path.with_suffix('.pt')})")
+    _check_container(path, expected)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:  # noqa: BLE001 - any unreadable file gets the same message
@@ -118,6 +120,29 @@ def load_checkpoint(path: str | Path | None = None,
         net = _net_from_state(path, cfg, payload.get("state_dict"), "")
     net.to(device).eval()
     return net, dict(meta)
+
+
+def _check_container(path: Path, expected: str) -> None:
+    """Refuse, in words, a file that cannot be a torch checkpoint before torch reads it: an empty file, a
+    cut-short one (a torch file is a zip archive whose directory is written last) and a plain pickle
+    (whose reading torch would announce with a warning of its own before refusing it)."""
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError as err:
+        raise CheckpointError(f"checkpoint {path} cannot be read ({err.strerror or err})") from None
+    if size == 0:
+        why = "it is empty (0 bytes)"
+    elif head[:1] == b"\x80":
+        why = "it is a plain pickle, not a torch zip archive (a pickle can run code: it is never read)"
+    elif not head.startswith(b"PK"):
+        why = "it is not a torch file (a torch file is a zip archive)"
+    elif not zipfile.is_zipfile(path):
+        why = f"it is truncated ({size} bytes, its zip directory missing: the write was cut short)"
+    else:
+        return
+    raise CheckpointError(f"checkpoint {path} is not an ipp-bench checkpoint: {why}; expected {expected}")
 
 
 def _net_from_state(path: Path, cfg: NetConfig, state: Any, which: str) -> AttentionNet:

@@ -104,6 +104,25 @@ def test_incompatible_checkpoints_are_refused(tmp_path, small_ckpt):
         load_checkpoint(tmp_path / "model.zip") if (tmp_path / "model.zip").write_text("x") else None
 
 
+def test_an_empty_truncated_or_pickled_checkpoint_is_named_as_such_before_torch_reads_it(tmp_path, small_ckpt):
+    import pickle
+    import warnings
+
+    empty = tmp_path / "empty.pt"
+    empty.write_bytes(b"")
+    cut = tmp_path / "cut.pt"
+    cut.write_bytes(small_ckpt.read_bytes()[:4000])
+    pickled = tmp_path / "plain.pt"
+    pickled.write_bytes(pickle.dumps({"format": "ipp_bench.attention/1"}, protocol=4))
+    for path, why in ((empty, "it is empty \\(0 bytes\\)"), (cut, "it is truncated \\(4000 bytes"),
+                      (pickled, "it is a plain pickle, not a torch zip archive")):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # torch's own notice (e.g. "Detected pickle protocol 4") fails here
+            with pytest.raises(CheckpointError, match=f"is not an ipp-bench checkpoint: {why}") as err:
+                load_checkpoint(path)
+        assert "\n" not in str(err.value)
+
+
 def test_pe_dim_mismatch_is_refused_at_reset_in_one_line(small_ckpt):
     planner = make_planner(f"attention:checkpoint={small_ckpt}")
     env = gym.make("ipp_bench/Grid15-v0", pe_dim=16)

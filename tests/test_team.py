@@ -256,7 +256,8 @@ def test_a_team_board_flies_every_planner_per_uav_and_team_aware_ones(tmp_path):
 
 
 def test_the_report_pairs_a_team_with_its_single_uav_task_at_equal_flight_and_mission_time():
-    from ipp_bench.eval.report import Aggregate, team_pairs, team_section
+    from ipp_bench.eval.markdown import team_section
+    from ipp_bench.eval.tables import EpisodeTable, team_pairs
 
     single, team = "ipp_bench/Hotspots30Eval-v2", TEAM2
     assert team_pairs([single, team, "ipp_bench/Grid30Eval-v1"]) == [(single, team, 2)]
@@ -268,7 +269,7 @@ def test_the_report_pairs_a_team_with_its_single_uav_task_at_equal_flight_and_mi
             row.update({k: value for k in ("trace_roi", "rmse_roi", "uncertainty_reduction_pct",
                                            "rmse_reduction_pct")})
             rows.append(row)
-    text = team_section(Aggregate(rows))
+    text = team_section(EpisodeTable(rows))
     assert "| Method | 2 UAVs at 50 s - one at 100 s | 2 UAVs - one, at 50 s | 2 UAVs - one, at 100 s |" in text
     line = next(ln for ln in text.splitlines() if ln.startswith("| `greedy`"))
     cells = [c.strip() for c in line.strip("|").split("|")][1:]
@@ -276,4 +277,117 @@ def test_the_report_pairs_a_team_with_its_single_uav_task_at_equal_flight_and_mi
     # at 100: 30 - (20 + s) = 10 - s, mean 8.5
     assert [c.split(" ")[0] for c in cells] == ["+6.5", "+16.5", "+8.5"]
     assert all(c.endswith("won 4/4") for c in cells)
-    assert team_section(Aggregate([r for r in rows if r["task"] == team])) == ""
+    assert team_section(EpisodeTable([r for r in rows if r["task"] == team])) == ""
+
+
+# -- one observation, one resolution of the team's config, PettingZoo's conventions ------------------------
+def test_a_uav_of_a_team_of_one_observes_exactly_what_the_single_uav_env_observes():
+    """The same state gives the same observation, bit for bit: a team of one on the single-UAV task's
+    config and seed is that task's episode, observed through the one GraphObservation both envs hold."""
+    team = make_env(TEAM2, budget_s=60, team={"size": 1, "starts": None})
+    single = make_env("ipp_bench/Hotspots30Eval-v2", budget_s=60)
+    assert type(team.seats[0]).__mro__[1:] == (object,)  # a seat holds the env's parts, it is no env itself
+    for seed in (0, 3):
+        obs, _ = single.reset(seed=seed)
+        team.reset(seed=seed)
+        rng = np.random.default_rng(seed)
+        steps = 0
+        for _ in team.agent_iter():
+            seen, _, terminated, _, _ = team.last()
+            if terminated:
+                team.step(None)
+                continue
+            assert seen.keys() == obs.keys()
+            for key in obs:
+                assert seen[key].dtype == obs[key].dtype and seen[key].tobytes() == obs[key].tobytes(), key
+            action = int(rng.choice(np.flatnonzero(obs["action_mask"])))
+            obs, reward, _, _, _ = single.step(action)
+            team.step(action)
+            assert team.rewards.get("uav_0", reward) == reward
+            steps += 1
+        assert steps > 10 and team.seats[0].mission.time_s == single.mission.time_s
+
+
+def test_the_team_builds_its_parts_once_and_each_uav_walks_its_own_budget(monkeypatch):
+    """One config, roadmap, camera and observation (one footprint per node) for the whole team, shared by
+    every seat; each UAV's budget is resolved when the env is built, never again per reset, and its
+    observation's budget fraction walks down its own budget."""
+    from ipp_bench.core.config import IPPConfig
+    from ipp_bench.core.sensor import Sensor
+
+    looks = []
+    observe = Sensor.observe
+    monkeypatch.setattr(Sensor, "observe", lambda self, p: looks.append(1) or observe(self, p))
+    env = make_env(TEAM2, budget_s=40, team={"budgets_s": [30.0, 40.0]})
+    assert len(looks) == env.roadmap.n_nodes  # the footprints, once for the team
+    assert all(seat.observer is env.observer and seat.config is env.config for seat in env.seats)
+    assert [c.mission.budget_s for c in env.member_configs] == [30.0, 40.0]
+    assert env.world_config.mission.budget_s == 40.0
+    replaced = []
+    replace = IPPConfig.replace
+    monkeypatch.setattr(IPPConfig, "replace", lambda self, **kw: replaced.append(kw) or replace(self, **kw))
+    env.reset(seed=1)
+    assert not [kw for kw in replaced if "budget_s" in kw]
+    fractions = {a: [] for a in env.possible_agents}
+    rng = np.random.default_rng(1)
+    for agent in env.agent_iter():
+        obs, _, terminated, _, _ = env.last()
+        if terminated:
+            env.step(None)
+            continue
+        mission = env.seats[env.uav_index(agent)].mission
+        own = (30.0, 40.0)[env.uav_index(agent)]
+        assert obs["budget"][0] == np.float32(mission.remaining_s / own)
+        fractions[agent].append(float(obs["budget"][0]))
+        env.step(int(rng.choice(np.flatnonzero(obs["action_mask"]))))
+    for walk in fractions.values():
+        assert walk[0] == pytest.approx(1.0, abs=1e-6) and walk == sorted(walk, reverse=True) and walk[-1] < 0.5
+
+
+def test_env_and_raw_env_follow_pettingzoos_conventions():
+    from pettingzoo.test import api_test
+    from pettingzoo.utils.wrappers import AssertOutOfBoundsWrapper, OrderEnforcingWrapper
+
+    from ipp_bench.envs import team as team_module
+
+    raw = team_module.raw_env(TEAM2, budget_s=30)
+    assert isinstance(raw, team_module.TeamGraphEnv) and raw.task_id == TEAM2
+    wrapped = team_module.env(TEAM2, budget_s=30)
+    assert isinstance(wrapped, OrderEnforcingWrapper) and isinstance(wrapped.env, AssertOutOfBoundsWrapper)
+    assert wrapped.unwrapped.config.mission.budget_s == 30
+    with pytest.raises(AttributeError, match="agent_selection cannot be accessed before reset"):
+        _ = wrapped.agent_selection
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # its advice for Box observations: ours is the single-UAV Dict
+        api_test(wrapped, num_cycles=50)
+    wrapped.reset(seed=0)
+    with pytest.raises(AssertionError, match="action is not in action space"):
+        wrapped.step(raw.roadmap.k)
+    with pytest.raises(ValueError, match="flies one UAV"):
+        team_module.raw_env("ipp_bench/Hotspots30Eval-v2")
+    with pytest.raises(ValueError, match=r"render_mode='human' is invalid"):
+        team_module.raw_env(TEAM2, render_mode="human")
+
+
+def test_there_is_no_parallel_view_because_a_uav_may_act_twice_in_a_row():
+    """aec_to_parallel steps every agent once per cycle; here the UAV whose leg ends first acts, again and
+    again while a teammate flies a long leg, so the env says it is not parallelizable."""
+    from pettingzoo.utils.conversions import aec_to_parallel
+
+    env = make_env(TEAM2, budget_s=60)
+    assert env.metadata["is_parallelizable"] is False
+    with pytest.raises(AssertionError):
+        aec_to_parallel(env)
+    env.reset(seed=0)
+    order = []
+    for agent in env.agent_iter():
+        obs, _, terminated, _, _ = env.last()
+        if terminated:
+            env.step(None)
+            continue
+        order.append(agent)
+        mask = obs["action_mask"].astype(bool)
+        # uav_0 hops to its nearest neighbours, uav_1 to its farthest: uav_0 decides more often
+        costs = np.where(mask, env.roadmap.costs[env.seats[env.uav_index(agent)].current_node], np.nan)
+        env.step(int(np.nanargmin(costs) if agent == "uav_0" else np.nanargmax(costs)))
+    assert any(a == b for a, b in zip(order, order[1:]))

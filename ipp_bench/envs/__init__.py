@@ -1,6 +1,7 @@
 """Gymnasium environments and the registered benchmark tasks (``gym.make("ipp_bench/...")``)."""
 
 from .graph import GraphIPPEnv
+from .observation import GraphObservation
 from .registry import (
     NAMESPACE,
     TASK_FILE_ERRORS,
@@ -20,6 +21,6 @@ from .registry import (
 
 register_all()
 
-__all__ = ["NAMESPACE", "GraphIPPEnv", "TASKS", "TASK_FILE_ERRORS", "TaskFileError", "TaskSpec", "load_task",
-           "make_env", "parse_overrides", "register_all", "resolve_task", "short_task_id", "tagged", "task_config",
-           "task_spec"]
+__all__ = ["NAMESPACE", "GraphIPPEnv", "GraphObservation", "TASKS", "TASK_FILE_ERRORS", "TaskFileError", "TaskSpec",
+           "load_task", "make_env", "parse_overrides", "register_all", "resolve_task", "short_task_id", "tagged",
+           "task_config", "task_spec"]

@@ -1,19 +1,29 @@
 """A team of UAVs on one roadmap and one shared belief, as a PettingZoo AEC environment.
 
 Decisions are asynchronous: a UAV decides when its leg ends, so the UAV whose leg ends next acts
-next. PettingZoo's AEC API is that turn order (``agent_selection`` is the UAV with the earliest
-clock, ties to the lower index); a parallel API would force every UAV to decide at once, which no
-UAV of a real team does. Each UAV's observation is the single-UAV task's
-(:class:`~ipp_bench.envs.graph.GraphIPPEnv`: node features of the shared belief, its own node,
-neighbours, action mask and budget fraction), so a single-UAV policy or planner flies any UAV of a
-team unchanged. The mask offers the legs the UAV's own budget pays for and, unless the task lets UAVs
-share nodes, not a node another UAV stands on or is flying to (where every affordable leg is taken by
-a teammate, the taken ones are offered: a UAV never stops because a teammate is in the way).
+next (``agent_selection`` is the UAV with the earliest clock, ties to the lower index), and a UAV
+whose leg is short acts again before a teammate on a long leg. Each UAV's observation is the
+single-UAV task's, built by the same :class:`~ipp_bench.envs.observation.GraphObservation` the
+single-UAV env holds (node features of the shared belief, its own node, neighbours, action mask and
+budget fraction), so a single-UAV policy or planner flies any UAV of a team unchanged. The mask offers
+the legs the UAV's own budget pays for and, unless the task lets UAVs share nodes, not a node another
+UAV stands on or is flying to (where every affordable leg is taken by a teammate, the taken ones are
+offered: a UAV never stops because a teammate is in the way).
 
 The belief holds every read-out taken up to the acting UAV's clock (:class:`~ipp_bench.core.team.TeamMission`).
 Rewards are the team's: after each leg, the shared belief's ROI trace reduction up to the next
 decision (the single-UAV task's reward, eq. 9), given to every UAV. A UAV whose budget pays for no
 further leg is terminated (stepped with None, then removed); the episode ends when every UAV is.
+
+PettingZoo's conventions: :func:`raw_env` is the bare env of a team task (what
+:func:`~ipp_bench.envs.make_env` returns), :func:`env` the same wrapped in PettingZoo's
+``AssertOutOfBoundsWrapper`` (the actions are ``Discrete``) and ``OrderEnforcingWrapper``. There is
+no parallel view, and ``metadata["is_parallelizable"]`` is False: PettingZoo's ``aec_to_parallel``
+steps every live agent once per cycle in a fixed order, which this turn order is not (the wrapper
+would fail the first time a UAV acts twice in a row), and a hand-written ``ParallelEnv`` would have
+every UAV decide at once on one belief: a synchronous team, another task, whose UAVs would decide
+before their legs end or wait for their teammates'. A UAV's own seat (:class:`UAVSeat`) is what its
+planner reads through :class:`~ipp_bench.planners.base.TeamRobotView`.
 """
 
 from __future__ import annotations
@@ -23,44 +33,68 @@ from typing import Any
 import numpy as np
 from gymnasium.utils import seeding
 from pettingzoo import AECEnv
+from pettingzoo.utils import wrappers
 
 from ..core import metrics as M
 from ..core.config import TIME_TOL_S, IPPConfig, invalid
-from ..core.fields import make_field
 from ..core.mission import cell_to_xyz
-from ..core.team import TeamConfig, TeamMission
-from .graph import GraphIPPEnv
+from ..core.team import MemberMission, TeamConfig, TeamMission
+from .episode import check_render_mode, draw_episode, episode_seed, resolve_config
+from .observation import GraphObservation
 from .panels import render_mission
 
+#: the team task :func:`env` and :func:`raw_env` make when none is named
+DEFAULT_TASK = "ipp_bench/Hotspots30Team2Eval-v2"
 
-class UAVEnv(GraphIPPEnv):
-    """One UAV's seat in a team episode: the single-UAV env's observation, mask and view for UAV
-    ``index`` (its mission is the UAV's :class:`~ipp_bench.core.team.MemberMission`, whose belief is the
-    team's). It shares the team env's roadmap and camera; it cannot be reset or stepped itself."""
 
-    def __init__(self, team_env: TeamGraphEnv, index: int):  # noqa: D107 - no GraphIPPEnv.__init__: shared parts
-        base = team_env.graph
+class UAVSeat:
+    """UAV ``index``'s seat in a team episode: its mission (a :class:`~ipp_bench.core.team.MemberMission`,
+    whose belief is the team's), its node, its mask and its observation. The task's config, roadmap,
+    camera and observation are the team env's, shared by every seat; the team env resets and steps it."""
+
+    def __init__(self, team_env: TeamGraphEnv, index: int):
         self.team_env = team_env
         self.index = index
-        self.config = base.config
-        self.task_id = base.task_id
-        self.render_mode = None
-        self.roadmap, self.sensor = base.roadmap, base.sensor
-        self._norm_xyz, self._footprint = base._norm_xyz, base._footprint
-        self.observation_space, self.action_space = base.observation_space, base.action_space
-        self.mission = None
+        self.observer: GraphObservation = team_env.observer
+        self.mission: MemberMission | None = None
         self.current_node = 0
-        self.episode_seed = None
         self.off_roadmap = False  # flown to a waypoint off the roadmap (a continuous planner's UAV)
 
+    @property
+    def config(self) -> IPPConfig:
+        return self.team_env.config
+
+    @property
+    def roadmap(self):
+        return self.observer.roadmap
+
+    @property
+    def sensor(self):
+        return self.observer.sensor
+
+    @property
+    def task_id(self) -> str | None:
+        return self.team_env.task_id
+
+    @property
+    def episode_seed(self) -> int | None:
+        return self.team_env.episode_seed
+
+    @property
+    def observation_space(self):
+        return self.observer.observation_space
+
+    @property
+    def action_space(self):
+        return self.observer.action_space
+
     def action_masks(self) -> np.ndarray:
+        """(k,) bool: the neighbours this UAV may fly to now (:meth:`TeamGraphEnv.uav_mask`)."""
         return self.team_env.uav_mask(self.index)
 
-    def reset(self, *, seed=None, options=None):
-        raise RuntimeError("a UAV of a team is reset with its team env (TeamGraphEnv.reset)")
-
-    def step(self, action):
-        raise RuntimeError("a UAV of a team is stepped by its team env (TeamGraphEnv.step)")
+    def observe(self, mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """This UAV's observation (``mask``: :meth:`action_masks`, when already computed)."""
+        return self.observer.observe(self.mission, self.current_node, self.action_masks() if mask is None else mask)
 
 
 class TeamGraphEnv(AECEnv):
@@ -91,13 +125,14 @@ class TeamGraphEnv(AECEnv):
             team = TeamConfig.from_dict(team)
         elif not isinstance(team, TeamConfig):
             invalid("team", team, "an ipp_bench.core.team.TeamConfig, a dict of the [team] table or None")
-        self.graph = GraphIPPEnv(config, render_mode=render_mode, task_id=task_id, **overrides)
-        self.config = self.graph.config
+        self.config = resolve_config(config, overrides)
+        check_render_mode(render_mode, self.metadata["render_modes"])
         team.check(self.config)
         self.team = team
         self.task_id = task_id
         self.render_mode = render_mode
-        self.roadmap, self.sensor = self.graph.roadmap, self.graph.sensor
+        self.observer = GraphObservation.for_config(self.config)
+        self.roadmap, self.sensor = self.observer.roadmap, self.observer.sensor
         if not team.share_nodes and team.size > self.roadmap.n_nodes:
             invalid("team.size", team.size, f"at most {self.roadmap.n_nodes} UAVs on this roadmap of "
                     f"{self.roadmap.n_nodes} nodes (team.share_nodes = false: one UAV per node)")
@@ -106,8 +141,11 @@ class TeamGraphEnv(AECEnv):
             if len(set(nodes)) < len(nodes):
                 invalid("team.starts", [list(s) for s in team.starts], "starts on different roadmap nodes "
                         "(team.share_nodes = false), or team.share_nodes = true")
+        #: the shared world's config (the longest budget) and each UAV's (its own budget and start)
+        self.world_config = team.team_config(self.config)
+        self.member_configs = [team.member_config(self.config, i) for i in range(team.size)]
         self.possible_agents = [f"uav_{i}" for i in range(team.size)]
-        self.seats = [UAVEnv(self, i) for i in range(team.size)]
+        self.seats = [UAVSeat(self, i) for i in range(team.size)]
         self.mission: TeamMission | None = None
         self.episode_seed: int | None = None
         self.agents: list[str] = []
@@ -119,30 +157,24 @@ class TeamGraphEnv(AECEnv):
 
     # -- spaces ----------------------------------------------------------------------------------
     def observation_space(self, agent: str):
-        return self.graph.observation_space
+        return self.observer.observation_space
 
     def action_space(self, agent: str):
-        return self.graph.action_space
+        return self.observer.action_space
 
     # -- reset -----------------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None) -> None:
-        lo, hi = self.config.mission.episode_seeds
-        if seed is None:
-            seed = int(self._seed_rng.integers(hi - lo))
-        elif not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-            raise ValueError(f"seed = {seed!r} is invalid: expected an integer >= 0 or None")
-        seed = lo + int(seed) % (hi - lo)
+        seed = episode_seed(self.config, seed, self._seed_rng.integers)
         self.episode_seed = seed
         rng, _ = seeding.np_random(seed)  # as GraphIPPEnv.reset: the same field, start and noise for UAV 0
-        field_seed, start_seed, noise_seed = (int(v) for v in rng.integers(0, 2**63 - 1, size=3))
-        truth = make_field(self.config.mission.field, self.config.grid, np.random.default_rng(field_seed))
+        truth, start_seed, noise_seed = draw_episode(self.config, rng)
         nodes = self._start_nodes(start_seed, options)
         rngs = [np.random.default_rng(noise_seed)] + [np.random.default_rng([noise_seed, i])
                                                       for i in range(1, self.team.size)]
         starts = [self.roadmap.positions[n] for n in nodes]
         self.mission = self._make_mission(truth, starts, rngs)
         for seat, member, node in zip(self.seats, self.mission.members, nodes):
-            seat.mission, seat.current_node, seat.episode_seed, seat.off_roadmap = member, node, seed, False
+            seat.mission, seat.current_node, seat.off_roadmap = member, node, False
         self.agents = self.possible_agents[:]
         self.rewards = {a: 0.0 for a in self.agents}
         self._cumulative_rewards = {a: 0.0 for a in self.agents}
@@ -156,12 +188,12 @@ class TeamGraphEnv(AECEnv):
         self._roi = self.mission.belief_roi()
         self.agent_selection = self._next()
 
-    def _make_mission(self, truth: np.ndarray, starts: list[np.ndarray],
-                      rngs: list[np.random.Generator]) -> TeamMission:
-        """The episode's team mission (the graph's straight legs; a simulated team flies its own)."""
-        return TeamMission(self.team.team_config(self.config), self.team, truth, starts, rngs,
-                           [self.team.member_config(self.config, i) for i in range(self.team.size)],
-                           sensor=self.sensor)
+    def _make_mission(self, truth: np.ndarray, starts: list[np.ndarray], rngs: list[np.random.Generator],
+                      **platform: Any) -> TeamMission:
+        """The episode's team mission; ``platform``: :class:`~ipp_bench.core.team.TeamMission`'s ``platform``
+        and ``ahead`` (default: the graph's straight legs; a simulated team passes its drones')."""
+        return TeamMission(self.world_config, self.team, truth, starts, rngs, self.member_configs,
+                           sensor=self.sensor, **platform)
 
     def _fly_until(self, time_s: float | None) -> None:
         """Fly the committed legs up to ``time_s`` (None: to their ends). The graph's legs are flown
@@ -216,7 +248,7 @@ class TeamGraphEnv(AECEnv):
     # -- AEC API ---------------------------------------------------------------------------------------
     def observe(self, agent: str) -> dict[str, np.ndarray]:
         seat = self.seats[self.uav_index(agent)]
-        return seat._observation(self.uav_mask(seat.index))
+        return seat.observe(self.uav_mask(seat.index))
 
     def step(self, action) -> None:
         if self.mission is None:
@@ -230,7 +262,7 @@ class TeamGraphEnv(AECEnv):
         i = self.uav_index(agent)
         seat = self.seats[i]
         mask = self.uav_mask(i)
-        a = seat._check_action(action, mask)
+        a = self.observer.check_action(action, mask)
         self._cumulative_rewards[agent] = 0.0
         target = int(self.roadmap.neighbours[seat.current_node, a])
         seat.mission.fly_to(self.roadmap.positions[target])
@@ -310,4 +342,34 @@ class TeamGraphEnv(AECEnv):
         self.mission = None
 
 
-__all__ = ["TeamGraphEnv", "UAVEnv"]
+def raw_env(task: str = DEFAULT_TASK, render_mode: str | None = None, **overrides: Any) -> TeamGraphEnv:
+    """The team task ``task`` as PettingZoo's bare AEC env (what :func:`~ipp_bench.envs.make_env` returns:
+    its own attributes and methods, :meth:`TeamGraphEnv.fly_waypoint` and :meth:`TeamGraphEnv.retire`
+    included).
+
+    Args:
+        task: a team task's id (the ``ipp_bench/`` prefix optional) or task file.
+        render_mode: ``"rgb_array"`` or None.
+        **overrides: config fields by name, ``team={...}`` for fields of its ``[team]`` table.
+
+    Raises:
+        ValueError: a task that is not a team task, a render mode the env lacks, or a bad override.
+    """
+    from .registry import is_team_task, make_env, tagged
+
+    if not is_team_task(task):
+        raise ValueError(f"task {task!r} flies one UAV: a PettingZoo env is a team task's, valid are {tagged('team')}")
+    check_render_mode(render_mode, TeamGraphEnv.metadata["render_modes"])
+    return make_env(task, render=render_mode is not None, **overrides)
+
+
+def env(task: str = DEFAULT_TASK, render_mode: str | None = None, **overrides: Any) -> AECEnv:
+    """:func:`raw_env` in PettingZoo's standard wrappers: ``AssertOutOfBoundsWrapper`` (an action outside
+    ``Discrete(k)`` fails before the env sees it) and ``OrderEnforcingWrapper`` (no step, observe or
+    agent_iter before reset). Attributes pass through the wrappers; a continuous planner's
+    :meth:`TeamGraphEnv.fly_waypoint` is no PettingZoo step, so fly those on :func:`raw_env`."""
+    wrapped = wrappers.AssertOutOfBoundsWrapper(raw_env(task, render_mode=render_mode, **overrides))
+    return wrappers.OrderEnforcingWrapper(wrapped)
+
+
+__all__ = ["DEFAULT_TASK", "TeamGraphEnv", "UAVSeat", "env", "raw_env"]

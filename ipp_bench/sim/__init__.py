@@ -15,9 +15,9 @@ Modules (imports flow downwards):
   ``vision_v0``: the v0 per-pixel numpy pipeline.
 - ``world``: all of the above for one grid; ``mission``: the MuJoCo platforms of a mission (their
   clock is the affordability oracle) and :class:`MuJoCoMission`; ``env``: the tasks
-  ``ipp_bench/MuJoCoWeed15-v0`` / ``-v1``, gymnasium env and dm_control task in one;
-  ``dmenv``: :func:`load`, the dm_control environment (``control.Environment`` over the
-  env's ``control.Task`` face and the world's ``dm_control.mujoco.Physics``); ``viewer``: the
+  ``ipp_bench/MuJoCoWeed15-v0`` / ``-v1``, their gymnasium env;
+  ``dmenv``: :func:`load`, the dm_control environment (``control.Environment`` over a
+  ``control.Task`` that holds the gymnasium env, and the world's ``dm_control.mujoco.Physics``); ``viewer``: the
   ``dm_control.viewer`` loader; ``calibrate``: the camera's noise model; ``video``: the demo video
   of an episode (``ipp-bench demo`` itself, which drives planners, is :mod:`ipp_bench.eval.demo`).
 

@@ -1,20 +1,9 @@
 """The MuJoCo deployment task: the graph MDP, flown by a simulated quadrotor with a real camera.
 
-One core, two faces: :class:`MuJoCoIPPEnv` is the gymnasium environment *and* the
-``dm_control.rl.control.Task`` of the same episode. ``gym.make(task_id)`` uses its gymnasium
-face (``reset`` / ``step``); :func:`ipp_bench.sim.load` puts the same object, as the task, with
-its world's ``dm_control.mujoco.Physics`` into a ``control.Environment`` (``initialize_episode``
-/ ``before_step`` / ``get_observation`` / ``get_reward`` / ``get_termination``). Both faces drive
-one mission; neither wraps the other.
-
-Why ``control.Task`` and not ``composer.Task``: composer's value is in entities, observables
-(noise and delays on what an agent observes, at sub-step rates) and variations (model fields
-re-drawn per episode). Here one environment step is a planner decision (a whole leg, thousands
-of physics steps under the cascaded controller, the camera read along the way), the realism acts
-inside the camera pipeline and the controller's state estimate, and the per-episode texture is
-written into the compiled model directly; composer's per-physics-step hooks and observables would
-only add a second, unused stepping loop. ``control.Task`` is the protocol of the dm_control
-suite: a Physics plus a task with those five methods, which is what this is.
+:class:`MuJoCoIPPEnv` is the task's gymnasium environment (``gym.make(task_id)``). Its dm_control
+view is a separate object that holds it: :class:`~ipp_bench.sim.dmenv.DeploymentTask`, the
+``control.Task`` that :func:`ipp_bench.sim.load` puts with the world's Physics into a
+``control.Environment``.
 """
 
 from __future__ import annotations
@@ -27,9 +16,6 @@ import numpy as np
 import ipp_bench.sim.gl  # noqa: F401  (chooses MUJOCO_GL before dm_control imports mujoco)
 
 # isort: split
-from dm_control.rl import control
-from dm_env import specs
-
 from ipp_bench.core.config import IPPConfig
 from ipp_bench.envs.graph import GraphIPPEnv
 from ipp_bench.envs.panels import render_mission
@@ -38,14 +24,7 @@ from ipp_bench.sim.render import azimuth_to_centre, chase_camera
 from ipp_bench.sim.world import SimConfig, WeedWorld, split_sim_settings
 
 
-def _spec_of(name: str, space) -> specs.Array:
-    low, high = np.broadcast_to(space.low, space.shape), np.broadcast_to(space.high, space.shape)
-    if np.all(np.isfinite(low)) and np.all(np.isfinite(high)):
-        return specs.BoundedArray(space.shape, space.dtype, low, high, name=name)
-    return specs.Array(space.shape, space.dtype, name=name)
-
-
-class MuJoCoIPPEnv(GraphIPPEnv, control.Task):
+class MuJoCoIPPEnv(GraphIPPEnv):
     """Adaptive 3D IPP on the roadmap, deployed in MuJoCo (the paper's Gazebo weed-field setting).
 
     ## Description
@@ -134,72 +113,6 @@ class MuJoCoIPPEnv(GraphIPPEnv, control.Task):
     def close(self) -> None:
         self.world.close()
         super().close()
-
-
-    # -- the dm_control face (control.Task) -----------------------------------------------------------
-    #
-    # Observations: the gymnasium observation's arrays plus ``estimated_position`` (3,) [m], what the
-    # drone's state estimator says (never the true pose). Action: a neighbour index. dm_env has no
-    # action masks: an unaffordable neighbour ends the episode (LAST, reward 0, discount 0) instead
-    # of raising. Rewards as the gymnasium face; discount 1 until the end (0 at the end).
-
-    def seed_episodes(self, seed: int | None) -> None:
-        """Seed of the episode seeds the dm_control face plays (:func:`ipp_bench.sim.load`'s ``seed``)."""
-        self._dm_rng = np.random.default_rng(seed)
-
-    def initialize_episode(self, physics) -> None:
-        self._check_physics(physics)
-        if getattr(self, "_dm_rng", None) is None:
-            self.seed_episodes(None)
-        obs, _ = self.reset(seed=int(self._dm_rng.integers(0, 2**31 - 1)))
-        self._dm_last = (obs, 0.0, False)
-
-    def before_step(self, action, physics) -> None:
-        self._check_physics(physics)
-        arr = np.asarray(action)
-        if arr.size != 1 or not np.issubdtype(arr.dtype, np.integer):
-            raise ValueError(f"action {action!r} is invalid: expected one neighbour index in [0, {self.roadmap.k})")
-        a = int(arr.reshape(-1)[0])
-        if not 0 <= a < self.roadmap.k:
-            raise ValueError(f"action {a} is invalid: expected a neighbour index in [0, {self.roadmap.k})")
-        mask = self.action_masks()
-        if not mask[a]:  # the drone asked for a leg the budget cannot pay for: the episode ends
-            self._dm_last = (self._observation(mask), 0.0, True)
-            return
-        obs, reward, terminated, _, _ = self.step(a)
-        self._dm_last = (obs, float(reward), bool(terminated))
-
-    def get_observation(self, physics) -> dict[str, np.ndarray]:
-        obs = self._dm_last[0]
-        spec = self._dm_observation_spec()
-        out = {k: np.asarray(v, dtype=spec[k].dtype) for k, v in obs.items()}
-        out["estimated_position"] = self.world.flight.estimated_position().astype(np.float64)
-        return out
-
-    def get_reward(self, physics) -> float:
-        return self._dm_last[1]
-
-    def get_termination(self, physics):
-        return 0.0 if self._dm_last[2] else None
-
-    def action_spec(self, physics) -> specs.DiscreteArray:
-        return specs.DiscreteArray(int(self.roadmap.k), dtype=np.int64, name="neighbour")
-
-    def observation_spec(self, physics) -> dict[str, specs.Array]:
-        return dict(self._dm_observation_spec())
-
-    def _dm_observation_spec(self) -> dict[str, specs.Array]:
-        spec = getattr(self, "_dm_obs_spec", None)
-        if spec is None:
-            spec = {name: _spec_of(name, sub) for name, sub in self.observation_space.spaces.items()}
-            spec["estimated_position"] = specs.Array((3,), np.float64, name="estimated_position")
-            self._dm_obs_spec = spec
-        return spec
-
-    def _check_physics(self, physics) -> None:
-        if physics is not self.world.scene.physics:
-            raise ValueError("this task runs on its own world's physics (env.world.scene.physics); "
-                             "build the environment with ipp_bench.sim.load()")
 
 
 #: former name of the v1 entry point: both versions are :class:`MuJoCoIPPEnv`, their task files differ

@@ -274,9 +274,8 @@ class MuJoCoTeamEnv(TeamGraphEnv):
         texture_seed = int(copy.deepcopy(rngs[0]).integers(2**63 - 1))
         sim = SimTeam(self.world, starts, texture_seed)
         self.sim_team = sim
-        mission = TeamMission(self.team.team_config(self.config), self.team, truth, starts, rngs,
-                              [self.team.member_config(self.config, i) for i in range(self.team.size)],
-                              sensor=self.sensor, platform=lambda i: DronePlatform(sim, i), ahead=sim.ahead)
+        mission = super()._make_mission(truth, starts, rngs, platform=lambda i: DronePlatform(sim, i),
+                                        ahead=sim.ahead)
         sim.team = mission
         return mission
 

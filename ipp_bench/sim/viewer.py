@@ -59,7 +59,7 @@ class PlannerPolicy:
     def __call__(self, time_step) -> np.ndarray:
         task = self._env.task
         if time_step.first():
-            self._planner.reset(self._view(task), self._seed)
+            self._planner.reset(self._view(task.env), self._seed)
             self._seed += 1
         obs = {k: v for k, v in time_step.observation.items() if k != "estimated_position"}
         return np.int64(self._planner.act(obs))

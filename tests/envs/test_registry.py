@@ -1,5 +1,7 @@
 """The task registry: the paper's tasks, tags, idempotent registration, episode-seed ranges."""
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -98,6 +100,31 @@ def test_make_env_is_the_one_way_to_a_tasks_env():
         envs.make_env("Nope-v1")
     with pytest.raises(ValueError, match="budget_s"):
         envs.make_env("Grid15Eval-v1", budget_s=-1.0)
+
+
+def test_gym_make_adds_gymnasiums_default_wrappers_and_make_env_returns_the_env_inside():
+    """Order enforcing and the passive checker, as gymnasium registers by default (the checker has
+    nothing to say on the suite's spaces); make_env gives the env they wrap, whose own attributes its
+    callers read."""
+    from gymnasium.error import ResetNeeded
+    from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker
+
+    for task in ("ipp_bench/Grid15Eval-v1", "ipp_bench/Hotspots15Eval-v2", "ipp_bench/Weed15Twin-v1"):
+        spec = gym.spec(task)
+        assert spec.order_enforce and not spec.disable_env_checker
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            env = gym.make(task)
+            assert isinstance(env, OrderEnforcing) and isinstance(env.env, PassiveEnvChecker)
+            with pytest.raises(ResetNeeded):
+                env.step(0)
+            obs, _ = env.reset(seed=0)
+            for _ in range(3):
+                obs, *_ = env.step(int(np.flatnonzero(obs["action_mask"])[0]))
+        bare = envs.make_env(task)
+        assert type(bare) is type(env.unwrapped) and bare is bare.unwrapped
+        with pytest.raises(RuntimeError, match=r"call reset\(\) before step\(\)"):
+            bare.step(0)
 
 
 # -- task files ----------------------------------------------------------------------------------

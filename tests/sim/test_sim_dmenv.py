@@ -29,7 +29,7 @@ class DeploymentConformanceTest(test_utils.EnvironmentTestMixin, absltest.TestCa
             if task.mission is None:
                 yield 0
                 continue
-            mask = task.action_masks()
+            mask = task.env.action_masks()
             yield int(np.flatnonzero(mask)[0]) if mask.any() else 0
 
 
@@ -55,6 +55,26 @@ def test_load_is_a_dm_control_environment_over_one_core():
     assert np.linalg.norm(flown - start) > 1.0
     frame = env.physics.render(48, 48, camera_id="quad/down")
     assert frame.shape == (48, 48, 3) and frame.std() > 0
+    env.close()
+
+
+def test_the_task_holds_the_gymnasium_env_and_the_env_is_no_task():
+    """dm_control's suite shape: a control.Task that holds the episode's env and delegates to it; the
+    gymnasium env is one (a gymnasium.Env only)."""
+    import gymnasium as gym
+
+    from ipp_bench.sim.dmenv import DeploymentTask
+    from ipp_bench.sim.env import MuJoCoIPPEnv
+
+    env = ipp_bench.sim.load(seed=2, budget_s=12.0)
+    task = env.task
+    assert type(task) is DeploymentTask and not isinstance(task, gym.Env)
+    assert isinstance(task.env, MuJoCoIPPEnv) and not isinstance(task.env, control.Task)
+    ts = env.reset()
+    assert task.mission is task.env.mission and task.world is task.env.world
+    for key, value in task.env.observer.observe(task.mission, task.env.current_node,
+                                                task.env.action_masks()).items():
+        np.testing.assert_array_equal(ts.observation[key], value)
     env.close()
 
 

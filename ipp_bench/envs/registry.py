@@ -38,8 +38,6 @@ from .taskfile import (
 
 #: what ``gym.make_vec`` of a MuJoCo task passes to its vector env (the spec's ``vector_kwargs``)
 VECTOR_KWARGS = {"context": "forkserver"}
-#: :func:`~ipp_bench.envs.taskfile.load_task_file` by the short name tests import
-_load = load_task_file
 
 
 def load_task(path) -> str:

@@ -113,7 +113,3 @@ class MuJoCoIPPEnv(GraphIPPEnv):
     def close(self) -> None:
         self.world.close()
         super().close()
-
-
-#: former name of the v1 entry point: both versions are :class:`MuJoCoIPPEnv`, their task files differ
-MuJoCoIPPEnvV1 = MuJoCoIPPEnv

@@ -14,10 +14,10 @@ from ipp_bench.core.belief import (
     GPBelief,  # noqa: E402
     normalised_innovation,  # noqa: E402
 )
-from ipp_bench.envs.registry import _load  # noqa: E402
+from ipp_bench.envs.taskfile import load_task_file  # noqa: E402
 from ipp_bench.planners.episode import fly_episode  # noqa: E402
 from ipp_bench.sim import calibrate  # noqa: E402
-from ipp_bench.sim.env import MuJoCoIPPEnvV1  # noqa: E402
+from ipp_bench.sim.env import MuJoCoIPPEnv  # noqa: E402
 
 TASK = "ipp_bench/MuJoCoWeed15-v1"
 
@@ -48,7 +48,7 @@ def test_v1_is_registered_with_the_papers_setting_and_fitted_constants():
 @pytest.mark.filterwarnings("ignore:.*Box observation space m")
 def test_check_env_v1():
     e = gym.make(TASK, budget_s=12.0).unwrapped
-    assert isinstance(e, MuJoCoIPPEnvV1)
+    assert isinstance(e, MuJoCoIPPEnv)
     check_env(e, skip_render_check=True)
     e.close()
 
@@ -149,7 +149,7 @@ def test_calibration_command_on_a_tiny_budget(tmp_path):
     constants = {"noise_a": 0.00123, "noise_b": 0.25, "binning_noise_exponent": 1.0, "persistent_var": 0.002,
                  "persistent_var_binned": 0.004, "persistent_corr": 0.9, "noise_floor": 0.05}
     calibrate.write_task_file(str(path), constants, "python -m ipp_bench.sim.calibrate --fields 1", 0.004)
-    spec = _load(path)
+    spec = load_task_file(path)
     for k, v in constants.items():
         assert getattr(spec.config.sensor, k) == v, k
     assert spec.config.gp.nugget == 0.004

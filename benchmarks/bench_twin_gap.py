@@ -19,7 +19,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from ipp_bench.eval.report import bootstrap_ci
+from ipp_bench.eval.aggregate import bootstrap_ci
 
 METRIC = "uncertainty_reduction_pct"
 

@@ -316,7 +316,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def _reference(reference: str | None, planners: Sequence[str]) -> str | None:
     """The report's reference planner: ``--reference`` must name one of the run's planners; without
     it, greedy where it runs (else the report says there is no paired comparison)."""
-    from .eval.report import DEFAULT_REFERENCE
+    from .eval.tables import DEFAULT_REFERENCE
 
     if reference is None:
         return DEFAULT_REFERENCE
@@ -327,7 +327,7 @@ def _reference(reference: str | None, planners: Sequence[str]) -> str | None:
 def _one_of(spec: str, planners: Sequence[str], flag: str) -> str:
     """The run's planner that ``spec`` names (its canonical spec, or its bare name when only one
     spec of the run has that name)."""
-    from .eval.report import resolve_reference
+    from .eval.tables import resolve_reference
 
     found = resolve_reference(spec.strip(), planners) if spec.strip() else None
     if found is None:
@@ -360,7 +360,7 @@ class _SigtermAsInterrupt:
 
 def _half_width(value: float | None, flag: str) -> float:
     """The power rule's target: a finite number of points > 0 (default 3)."""
-    from .eval.aggregate import POWER_HALF_WIDTH
+    from .eval.power import POWER_HALF_WIDTH
 
     if value is None:
         return POWER_HALF_WIDTH
@@ -370,9 +370,10 @@ def _half_width(value: float | None, flag: str) -> float:
 
 
 def cmd_power(args: argparse.Namespace) -> int:
-    from .eval.aggregate import needed_per_task, power_rule
-    from .eval.report import DEFAULT_REFERENCE, resolve_reference, short_task
-    from .eval.results import RESULTS_CSV, read_results
+    from .envs import short_task_id
+    from .eval.power import needed_per_task, power_rule
+    from .eval.results_csv import RESULTS_CSV, read_results
+    from .eval.tables import DEFAULT_REFERENCE, resolve_reference
 
     try:
         h = _half_width(args.half_width, "--half-width")
@@ -398,7 +399,7 @@ def cmd_power(args: argparse.Namespace) -> int:
             cs = [c for c in cells if c.task == task and c.time_s == t]
             top = max(cs, key=lambda c: (c.needed, c.sd))
             widths = [c.half_width for c in cs if c.half_width is not None]
-            print(f"{short_task(task):<20} {t:>8g} {max(c.episodes for c in cs):>8} {top.sd:>10.2f} "
+            print(f"{short_task_id(task):<20} {t:>8g} {max(c.episodes for c in cs):>8} {top.sd:>10.2f} "
                   f"{(f'{max(widths):.2f}' if widths else '-'):>10} {top.needed:>7}  {top.planner}")
     print("episodes each task needs (the most over planners and report times):")
     for task, c in needed_per_task(cells).items():
@@ -413,10 +414,11 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from .core.data import OutputWriteError, check_output_dir
     from .envs import parse_overrides
     from .eval.against import against_plan
-    from .eval.executors import ExecutorError, check_executor_args, default_backend
+    from .eval.executors import check_executor_args, default_backend
+    from .eval.jobs import ExecutorError
     from .eval.leaderboard import EpisodeFailed, Interrupted, run_leaderboard
     from .eval.plan import describe_quick, make_plan
-    from .eval.results import ResultsMismatchError
+    from .eval.run_json import ResultsMismatchError
     from .planners import split_specs
 
     if args.quick:

@@ -231,7 +231,7 @@ def test_a_ray_address_that_answers_nothing_is_one_line_within_seconds(capsys, t
     import socket
     import threading
 
-    from ipp_bench.eval.executors import RAY_CONNECT_TIMEOUT_S
+    from ipp_bench.eval.ray_executor import RAY_CONNECT_TIMEOUT_S
 
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
     silent = socket.socket()

@@ -75,8 +75,9 @@ def temporary_sibling(path: str | Path) -> Path:
 
 def write_atomically(path: str | Path, write: Callable[[Path], None]) -> Path:
     """Write ``path`` through ``write(tmp)`` into a temporary sibling (same suffix), then rename it
-    into place: ``path`` is complete or untouched, never truncated. On failure (a full disk, say)
-    the temporary file is removed.
+    into place: ``path`` is complete or untouched, never truncated. The file's content is fsync'ed
+    before the rename and its folder after it, so the new content survives a power cut once this
+    returns. On failure (a full disk, say) the temporary file is removed.
 
     Raises:
         OutputWriteError: naming ``path`` and the cause.
@@ -94,4 +95,20 @@ def write_atomically(path: str | Path, write: Callable[[Path], None]) -> Path:
         except OSError:
             pass
         raise OutputWriteError(f"cannot write {path}: {err.strerror or err}") from None
+    _fsync_folder(path.parent)
     return path
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (fsync of the folder itself); a no-op where the platform or
+    the file system refuses it (Windows cannot open a folder; some network file systems)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)

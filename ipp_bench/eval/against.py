@@ -15,17 +15,10 @@ from pathlib import Path
 from typing import Any
 
 from ..envs.registry import resolve_task
-from .plan import (
-    SEED_SCHEME,
-    Plan,
-    _short,
-    config_differences,
-    episode_seeds,
-    make_plan,
-    normalised_overrides,
-    task_config_record,
-)
-from .results import RESULTS_CSV, RUN_JSON, read_results
+from .fingerprint import config_differences, normalised_overrides, short_json, task_config_record
+from .plan import SEED_SCHEME, Plan, episode_seeds, make_plan
+from .results_csv import RESULTS_CSV, read_results
+from .run_json import RUN_JSON
 
 
 @dataclass(frozen=True)
@@ -110,7 +103,7 @@ def against_plan(folder: str | Path, planners: Sequence[str], tasks: Sequence[st
     if quick:
         given.append("--quick: the board decides episodes; name cheaper planner settings in --planners instead")
     if env_overrides and normalised_overrides(board.tasks, env_overrides) != board.env_overrides:
-        given.append(f"--env {_short(env_overrides)}: the board has {_short(board.env_overrides)}")
+        given.append(f"--env {short_json(env_overrides)}: the board has {short_json(board.env_overrides)}")
     if given:
         raise ValueError(f"{name}: " + "; ".join(given) + " (leave these out: the published board decides them)")
     differences = []
@@ -123,8 +116,8 @@ def against_plan(folder: str | Path, planners: Sequence[str], tasks: Sequence[st
         differences += [f"{t} {line}" for line in
                         config_differences(board.task_configs[t], task_config_record(t, board.env_overrides))]
     if episode_seeds(board.seed, board.episodes) != list(board.seeds):
-        differences.append(f"episode seeds: there {_short(list(board.seeds))}, today's scheme gives "
-                           f"{_short(episode_seeds(board.seed, board.episodes))}")
+        differences.append(f"episode seeds: there {short_json(list(board.seeds))}, today's scheme gives "
+                           f"{short_json(episode_seeds(board.seed, board.episodes))}")
     if differences:
         raise ValueError(f"{name}: the published board was flown on other tasks or episodes than today's suite "
                          "gives, so new rows would not pair with it:\n" + "\n".join(f"  {d}" for d in differences))

@@ -1,8 +1,9 @@
 """Aggregate scores over the benchmark tasks, with the definitions of rliable (Agarwal et al. 2021,
-*Deep RL at the edge of the statistical precipice*), and the rule for how many episodes a board needs.
+*Deep RL at the edge of the statistical precipice*).
 
 Scores, interval estimates and plots are kept apart, as rliable keeps them: this module computes
-numbers from results.csv rows; :mod:`ipp_bench.eval.report` writes them as markdown and plots.
+numbers from results.csv rows; :mod:`ipp_bench.eval.markdown_stats` and :mod:`ipp_bench.eval.plots`
+write them as markdown and plots.
 
 **Normalised score.** Per task and report time, an episode's uncertainty reduction is turned into
 the share of the way from ``random`` to ``oracle``::
@@ -12,10 +13,9 @@ the share of the way from ``random`` to ``oracle``::
 with the means over the board's episodes of that task and time (fixed anchors, as rliable's
 Atari scores are normalised by fixed random and human scores). 0 is what flying without a plan
 gets, 1 is what knowing where the region of interest lies gets with greedy's one-step rule (which a
-planner that looks further ahead can exceed). Raw percentages do not pool: a 15 x 15 map saturates
-near 97 % and a 30 x 30 map's best planner is at 46 % after 100 s, so a point means something else
-on each; on the published boards the random-to-oracle span is 28 points or more at every task and
-time, so no task is magnified more than a few times against another. A board without ``random``
+planner that looks further ahead can exceed). Raw percentages do not pool: a small map saturates
+near 100 % while a large map's best planner is far below it at the first report times, so a point
+means something else on each. A board without ``random``
 takes 0 % (the prior, no reduction) as the lower anchor, one without ``oracle`` 100 % (a perfect
 belief over the ROI) as the upper one, and the report says so. A task and time whose span is below
 :data:`MIN_SPAN` points is left out, with a note.
@@ -44,14 +44,7 @@ a fixed seed: the same results.csv always gives the same numbers.
 improvement whose interval lies above 0.5; planners with the same rank are tied (the data cannot
 separate them). References that read the truth (the ``oracle``) are never ranked.
 
-**Power rule** (:func:`power_rule`). For a paired 95 % interval of "planner minus reference" of
-half-width at most ``h`` points at every report time, a task needs ``n = ceil((1.96 sd / h)^2)``
-episodes, ``sd`` the standard deviation of the paired difference over the board's episodes (the
-largest over planners and report times). Caveats: ``sd`` is itself estimated (a 3-episode board
-gives a rough one: apply the rule again on the bigger board and extend it while a half-width is
-still above ``h``; seeds are prefix-stable, so extending flies only the new episodes); the
-report's percentile bootstrap interval is about ``sqrt((n - 1) / n)`` times the normal one, so it
-reaches ``h`` at ``n`` episodes or a little before.
+The rule for how many episodes a board needs is :mod:`ipp_bench.eval.power`.
 """
 
 from __future__ import annotations
@@ -82,10 +75,6 @@ TEAM_UPPER_ANCHOR = "team-oracle"
 LOWER_DEFAULT, UPPER_DEFAULT = 0.0, 100.0
 #: [points] a task and time whose random-to-oracle span is smaller is left out of the aggregate
 MIN_SPAN = 1.0
-#: the normal quantile of a two-sided 95 % interval, as the power rule states it
-Z95 = 1.96
-#: [points] the default half-width target of the power rule
-POWER_HALF_WIDTH = 3.0
 #: thresholds of the performance profile the report writes out (the plot draws every one)
 PROFILE_MARKS = (0.0, 0.5, 0.75, 0.9, 1.0)
 _BATCH = 250  # resamples per vectorised batch
@@ -391,92 +380,16 @@ def estimate(board: Board, n_resamples: int = N_RESAMPLES, level: float = LEVEL,
     return AggregateEstimates(list(names), iqm_est, by_time, poi, taus, profile, ranks, n_resamples, level)
 
 
-# --------------------------------------------------------------------------------------------------
-# the power rule
-# --------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class PowerCell:
-    """One planner minus the reference at one task and report time."""
-
-    task: str
-    time_s: float
-    planner: str
-    episodes: int
-    sd: float  # [points] of the paired difference (ddof 1)
-    half_width: float | None  # [points] of the bootstrap interval reached; None with one episode
-    needed: int  # episodes the rule asks for
-
-
-def episodes_needed(sd: float, half_width: float) -> int:
-    """``ceil((1.96 sd / h)^2)``, at least 2 (one episode has no interval)."""
-    if not half_width > 0:
-        raise ValueError(f"half-width = {half_width!r} is invalid: expected a number of points > 0")
-    return max(2, math.ceil((Z95 * sd / half_width) ** 2 - 1e-9))
-
-
-def paired_differences(rows: Iterable[dict[str, Any]], reference: str, key: str = SCORE_KEY
-                       ) -> dict[tuple[str, float, str], np.ndarray]:
-    """Per (task, time, planner), the planner's value minus ``reference``'s on each seed both flew."""
-    by: dict[tuple[str, str, float], dict[int, float]] = defaultdict(dict)
-    order: dict[tuple[str, float], list[str]] = defaultdict(list)
-    for r in rows:
-        cell = (r["task"], float(r["time_s"]))
-        by[(r["task"], r["planner"], cell[1])][int(r["seed"])] = float(r[key])
-        if r["planner"] not in order[cell]:
-            order[cell].append(r["planner"])
-    out = {}
-    for (task, t), planners in order.items():
-        ref = by.get((task, reference, t))
-        if not ref:
-            continue
-        for p in planners:
-            if p == reference:
-                continue
-            mine = by[(task, p, t)]
-            seeds = sorted(set(mine) & set(ref))
-            if seeds:
-                out[(task, t, p)] = np.array([mine[s] - ref[s] for s in seeds])
-    return out
-
-
-def power_rule(rows: Iterable[dict[str, Any]], reference: str, half_width: float = POWER_HALF_WIDTH,
-               key: str = SCORE_KEY) -> list[PowerCell]:
-    """The power rule (module docstring) for every planner minus ``reference``, task and report time."""
-    cells = []
-    for (task, t, p), d in paired_differences(rows, reference, key).items():
-        sd = float(np.std(d, ddof=1)) if d.size > 1 else float("nan")
-        _, lo, hi = bootstrap_ci(d)
-        reached = None if lo is None else float(max(d.mean() - lo, hi - d.mean()))
-        needed = episodes_needed(sd, half_width) if math.isfinite(sd) else 2
-        cells.append(PowerCell(task, t, p, int(d.size), sd, reached, needed))
-    return cells
-
-
-def needed_per_task(cells: Iterable[PowerCell]) -> dict[str, PowerCell]:
-    """Per task, the cell that asks for the most episodes (the task's count)."""
-    out: dict[str, PowerCell] = {}
-    for c in cells:
-        if c.task not in out or c.needed > out[c.task].needed:
-            out[c.task] = c
-    return out
-
-
 __all__ = [
     "N_RESAMPLES",
-    "POWER_HALF_WIDTH",
     "SCORE_KEY",
     "AggregateEstimates",
     "Board",
-    "PowerCell",
     "bootstrap_ci",
-    "episodes_needed",
     "estimate",
     "iqm",
-    "needed_per_task",
     "normalised_board",
-    "paired_differences",
     "performance_profile",
-    "power_rule",
     "probability_of_improvement",
     "profile_taus",
 ]

@@ -24,10 +24,12 @@ from typing import Any
 
 from ..core.data import OutputWriteError
 from ..envs import load_task, short_task_id
-from .aggregate import POWER_HALF_WIDTH
-from .executors import JobError, JobFailed, default_backend, make_executor
+from .executors import default_backend, make_executor
+from .jobs import JobError, JobFailed
+from .machine import describe_machine
 from .plan import EpisodeJob, Plan, report_times
-from .results import ResultsStore, copy_published, describe_machine
+from .power import POWER_HALF_WIDTH
+from .results import ResultsStore, copy_published
 from .runner import run_episode
 
 

@@ -2,8 +2,8 @@
 
 :func:`make_plan` turns the command line's arguments (tasks, planner specs, episodes, seed,
 ``--quick``, ``--env`` overrides) into a :class:`Plan`: canonical planner specs, the episode
-seeds, and the fingerprint of everything that decides the numbers (the results folder compares it
-on a rerun, see :mod:`ipp_bench.eval.results`).
+seeds, and the fingerprint of everything that decides the numbers (:mod:`ipp_bench.eval.fingerprint`;
+the results folder compares it on a rerun, see :mod:`ipp_bench.eval.run_json`).
 
 Episode seeds derive from ``seed`` alone (:func:`episode_seeds`): every planner meets the same
 episodes (field, start, sensor noise), and the first ``n`` seeds stay the same when ``episodes``
@@ -17,7 +17,6 @@ seed set that today's suite gives otherwise is refused, naming what differs.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -25,34 +24,30 @@ from typing import Any
 
 import numpy as np
 
-from ..core.config import IPPConfig, field_owners
 from ..envs import tagged, task_config, task_spec
 from ..envs.registry import is_team_task, resolve_task
 from ..planners import make_config, make_planner, parse_spec, planner_names
+from .fingerprint import normalised_overrides, planner_fingerprint, task_config_record
 
 SEED_SCHEME = "SeedSequence(seed).spawn(episodes)[i] -> uint31"
 DEFAULT_EPISODES = 20
 #: the most episodes per (task, planner): a 95% interval is already ~1/100 of the spread at 10^4
 MAX_EPISODES = 10_000
 DEFAULT_TAG = "benchmark"
-# --quick: few episodes and cheaper look-ahead (spec overrides, applied unless the spec sets the
-# key itself). Sized so that all benchmark tasks x all planners fit 5 minutes on 2 busy cores:
-# MCTS costs ~20 ms per simulation and ~90 decisions per 200 s episode, CMA-ES ~2.4 ms per
-# evaluation and ~40 decisions (measured at load 5 on 2 cores).
+# A planner's defaults are its Config's, on every board. --quick: few episodes and cheaper look-ahead, flown
+# as explicit specs (``mcts:simulations=4``, so named in the results) unless a spec sets the key itself;
+# sized so that every benchmark task x every planner fits a few minutes on 2 busy cores (the planners'
+# times per decision: benchmarks/RESULTS.md).
 QUICK_EPISODES = 3
 QUICK_OVERRIDES: dict[str, dict[str, Any]] = {
     "mcts": {"simulations": 4},
     "cmaes": {"max_evals": 36},
 }
-# The default planner list's settings where they differ from the planner's own defaults: MCTS at
-# the benchmark's operating point, about 1 s per decision on Grid30Eval-v1 on one of 2 cores (the
-# paper: 3.94 s on a desktop). Its own default (100 simulations) made the v0 tables; name it
-# (``--planners mcts``) to get it.
+#: settings a canonical spec names at their default too, so that one label is one planner on every board:
+#: the v0 boards' ``mcts`` rows flew 100 simulations, and the default (24) is ``mcts:simulations=24``
+SPELLED_SETTINGS: dict[str, tuple[str, ...]] = {"mcts": ("simulations",)}
 #: planners whose episodes take longest, most expensive first (only the order of a run's jobs uses it)
 SLOW_PLANNERS: dict[str, int] = {"mcts": 2, "cmaes": 1}
-LEADERBOARD_DEFAULTS: dict[str, dict[str, Any]] = {
-    "mcts": {"simulations": 24},
-}
 
 
 def episode_seeds(seed: int, episodes: int) -> list[int]:
@@ -71,8 +66,9 @@ def _check_episodes(episodes: Any) -> None:
 
 
 def canonical_spec(spec: str, extra: dict[str, Any] | None = None) -> str:
-    """``"mcts:simulations=050"`` -> ``"mcts:simulations=50"``: name, then the overrides sorted, as
-    the planner's config holds them. ``extra`` overrides apply where the spec does not set the key.
+    """``"mcts:simulations=050"`` -> ``"mcts:simulations=50"``: name, then the overrides and the planner's
+    :data:`SPELLED_SETTINGS` sorted, as the planner's config holds them (``"mcts"`` -> ``"mcts:simulations=24"``).
+    ``extra`` overrides apply where the spec does not set the key.
 
     Raises:
         ValueError: unknown planner or setting, or a value of the wrong type.
@@ -80,9 +76,10 @@ def canonical_spec(spec: str, extra: dict[str, Any] | None = None) -> str:
     name, overrides = parse_spec(spec)
     overrides = {**(extra or {}), **overrides}
     config = make_config(name, overrides)
-    if not overrides:
+    keys = sorted(set(overrides) | {k for k in SPELLED_SETTINGS.get(name, ()) if hasattr(config, k)})
+    if not keys:
         return name
-    parts = [f"{k}={_format_value(getattr(config, k))}" for k in sorted(overrides)]
+    parts = [f"{k}={_format_value(getattr(config, k))}" for k in keys]
     return f"{name}:{','.join(parts)}"
 
 
@@ -97,142 +94,6 @@ def _format_value(value: Any) -> str:
 def report_times(task: str, env_overrides: dict[str, Any] | None = None) -> tuple[float, ...]:
     """The report times of ``task`` within its budget (the rows one episode gives)."""
     return task_config(task, env_overrides).mission.report_times_in_budget
-
-
-#: config fields added since run.json began to record task configs (as 16-hex digests of the
-#: whole config, before the configs were recorded field by field), by the change that added them,
-#: oldest first. A digest of an older folder matches today's config without the fields added after
-#: it was written, when those hold their defaults (the values that reproduce the older behaviour).
-DIGEST_ERA_ADDED_FIELDS: tuple[tuple[str, ...], ...] = (
-    ("nugget", "binning_noise_exponent", "episode_seeds"),  # benchmark v1
-    ("persistent_var", "persistent_var_binned", "persistent_corr", "noise_floor"),  # camera-error states
-    ("belief", "belief_window"),  # the window belief
-    ("persistent_neighbour_corr",),  # binned read-outs share their persistent error
-)
-
-
-def _json(value: Any) -> Any:
-    """``value`` as JSON reads it back (tuples become lists), so that a stored one compares equal."""
-    return json.loads(json.dumps(value, default=str))
-
-
-def task_config_record(task: str, env_overrides: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
-    """The configuration of ``task`` (with ``env_overrides``) as run.json records it: every field,
-    by section, as the config normalises it (JSON values)."""
-    return _json(task_config(task, env_overrides).to_dict())
-
-
-def _flat(record: dict[str, Any]) -> dict[str, Any]:
-    return {f"{section}.{name}": value for section, fields in record.items() if isinstance(fields, dict)
-            for name, value in fields.items()}
-
-
-def _config_digest(record: dict[str, Any]) -> str:
-    """The digest older run.json files recorded per task (sha256 of the sorted JSON, 16 hex)."""
-    blob = json.dumps(record, sort_keys=True, default=str)
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
-
-
-def _legacy_digest_matches(digest: str, record: dict[str, Any]) -> bool:
-    """Whether an older folder's digest is today's ``record`` without the fields added since (at
-    their defaults; :data:`DIGEST_ERA_ADDED_FIELDS`)."""
-    if digest == _config_digest(record):
-        return True
-    defaults = _flat(_json(IPPConfig().to_dict()))
-    owners = field_owners()
-    trimmed = json.loads(json.dumps(record))
-    for era in reversed(DIGEST_ERA_ADDED_FIELDS):
-        for name in era:
-            section = owners.get(name)
-            if section is None or name not in trimmed.get(section, {}):
-                continue
-            if trimmed[section][name] != defaults[f"{section}.{name}"]:
-                return False  # a later field away from its default: the older code could not have run it
-            del trimmed[section][name]
-        if digest == _config_digest(trimmed):
-            return True
-    return False
-
-
-def config_differences(stored: Any, current: dict[str, Any]) -> list[str]:
-    """What differs between a stored task config record and today's, one ``field: there X, now Y``
-    each; empty when they are the same arguments.
-
-    Values compare as numbers (``30`` and ``30.0`` are the same budget); a field the stored record
-    lacks is the same when today's value is its default (a field added since, at the value that
-    keeps the older behaviour). ``stored`` may be an older folder's digest string
-    (:func:`_legacy_digest_matches`).
-    """
-    if isinstance(stored, str):
-        if _legacy_digest_matches(stored, current):
-            return []
-        return [f"config digest {stored}, which today's config does not give (a changed task file or "
-                "default; that folder recorded no field-by-field config to name it)"]
-    if not isinstance(stored, dict):
-        return [f"an unreadable config record {stored!r}"]
-    there, now = _flat(stored), _flat(current)
-    defaults = _flat(_json(IPPConfig().to_dict()))
-    out = []
-    for key in sorted(set(there) | set(now)):
-        if key not in there:
-            if key in defaults and now[key] == defaults[key]:
-                continue  # added since, at its default
-            out.append(f"{key}: not recorded there (older code: the default {defaults.get(key)!r}), now {now[key]!r}")
-        elif key not in now:
-            out.append(f"{key}: there {there[key]!r}, a field today's config no longer has")
-        elif there[key] != now[key]:
-            out.append(f"{key}: there {there[key]!r}, now {now[key]!r}")
-    return out
-
-
-def fingerprint_differences(stored: dict[str, Any], current: dict[str, Any]) -> dict[str, list[str]]:
-    """Per differing fingerprint key, lines saying how (empty dict: the same arguments).
-
-    ``task_configs`` compare field by field (:func:`config_differences`); every other key by
-    value, numbers as numbers.
-    """
-    out: dict[str, list[str]] = {}
-    for key in sorted(set(stored) | set(current)):
-        there, now = stored.get(key), current.get(key)
-        if key == "task_configs" and isinstance(there, dict) and isinstance(now, dict):
-            lines = []
-            for task in sorted(set(there) | set(now)):
-                if task not in there or task not in now:
-                    lines.append(f"{task}: {'not there' if task not in there else 'not now'}")
-                    continue
-                lines += [f"{task} {line}" for line in config_differences(there[task], now[task])]
-            if lines:
-                out[key] = lines
-        elif there != now:
-            out[key] = [f"there {_short(there)}, now {_short(now)}"]
-    return out
-
-
-def _short(value: Any, limit: int = 200) -> str:
-    text = json.dumps(value, sort_keys=True, default=str)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def normalised_overrides(tasks: Sequence[str], env_overrides: dict[str, Any]) -> dict[str, Any]:
-    """``env_overrides`` as the config holds them (``budget_s=30`` and ``30.0`` alike), JSON values."""
-    if not env_overrides or not tasks:
-        return _json(dict(sorted(env_overrides.items())))
-    config = task_config(tasks[0], env_overrides)
-    owners = field_owners()
-    out = {}
-    for k in sorted(env_overrides):
-        if k in owners:
-            out[k] = getattr(getattr(config, owners[k]), k)
-        else:  # a whole section given as a dict
-            out[k] = env_overrides[k]
-    return _json(out)
-
-
-def planner_fingerprint(planner: Any) -> dict[str, str]:
-    """What a built planner's decisions depend on beyond its spec (the attention planner: its
-    checkpoint's content hash), from its optional ``fingerprint()`` method."""
-    fn = getattr(planner, "fingerprint", None)
-    return dict(fn()) if callable(fn) else {}
 
 
 def default_planners(log: Callable[[str], None] = print, team: bool = False) -> list[str]:
@@ -285,7 +146,7 @@ class Plan:
         quick: ``--quick`` changed something (fewer episodes or cheaper settings); a ``--quick``
             that changed nothing is no quick run.
         planner_fingerprints: per planner spec, what its decisions depend on beyond the spec
-            (:func:`planner_fingerprint`).
+            (:func:`~ipp_bench.eval.fingerprint.planner_fingerprint`).
         against: the published board these planners are paired with (:func:`ipp_bench.eval.against.against_plan`):
             its ``folder``, ``planners``, ``episodes`` and ``results_sha256``; None for a board of its own.
     """
@@ -381,7 +242,6 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
     if planners is not None and not [p for p in planners if str(p).strip(" ,")]:
         raise ValueError(f"the planner list {list(planners)!r} names no planner: pass planner specs "
                          "(e.g. --planners random greedy), or leave --planners out for every planner")
-    explicit = planners is not None
     specs = list(planners) if planners is not None else default_planners(
         log, team=any(is_team_task(t) for t in task_ids))
     if not specs:
@@ -389,10 +249,8 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
     resolved, fingerprints, quick_changed, built = [], {}, quick and episodes is None, {}
     for spec in specs:
         name = parse_spec(spec)[0]
-        extra = {} if explicit else dict(LEADERBOARD_DEFAULTS.get(name, {}))
-        without_quick = canonical_spec(spec, extra)
-        extra.update(QUICK_OVERRIDES.get(name, {}) if quick else {})
-        canon = canonical_spec(spec, extra)
+        without_quick = canonical_spec(spec)
+        canon = canonical_spec(spec, QUICK_OVERRIDES.get(name) if quick else None)
         quick_changed = quick_changed or canon != without_quick
         # a planner must build here, or fail now, loudly (the default list holds buildable ones)
         built[canon] = make_planner(canon)
@@ -467,6 +325,6 @@ def describe_quick() -> str:
             f"planner overrides {overrides} (unless a --planners spec sets them)")
 
 
-__all__ = ["DEFAULT_EPISODES", "LEADERBOARD_DEFAULTS", "MAX_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES",
+__all__ = ["DEFAULT_EPISODES", "MAX_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES", "SPELLED_SETTINGS",
            "EpisodeJob", "Plan", "canonical_spec", "default_planners", "check_episode_starts", "describe_quick",
-           "episode_seeds", "make_plan", "planner_fingerprint", "report_times", "resolve_task"]
+           "episode_seeds", "make_plan", "report_times", "resolve_task"]

@@ -1,31 +1,27 @@
-"""The results folder of a leaderboard run: its fingerprint, its lock and a resumable results.csv.
+"""The results folder of a leaderboard run: its lock, its run.json and a resumable results.csv.
 
 The folder holds:
 
 ``run.json``
-    the fingerprint of the arguments that decide the numbers (tasks and their configs, planner
-    specs and what their decisions depend on, e.g. the attention checkpoint's content hash, the
-    seed, environment overrides; :meth:`Plan.fingerprint`). A rerun with other arguments is
-    refused, naming what differs; a rerun with more episodes extends the folder (seeds are
-    prefix-stable). The executor (backend, workers) is not part of it: results do not depend on it.
-    Beside it, not part of it: ``machine`` (:func:`machine_info`: CPU model and the flags that change
-    floating-point results, cores, Python, numpy, scipy, torch, mujoco, dm-control; rows appended
-    elsewhere add ``other_machines``), and ``rows``: a 32-bit digest of every results.csv row
-    (:func:`row_digest`), rewritten after each episode's append.
+    the fingerprint of the arguments that decide the numbers and what is recorded beside it
+    (:mod:`ipp_bench.eval.run_json`: a rerun with other arguments is refused, naming what differs;
+    one with more episodes extends the folder). The executor (backend, workers) is not part of it:
+    results do not depend on it. Also ``machine`` (:func:`~ipp_bench.eval.machine.machine_info`;
+    rows appended elsewhere add ``other_machines``), and ``rows``: a 32-bit digest of every
+    results.csv row (:func:`~ipp_bench.eval.results_csv.row_digest`), rewritten after each
+    episode's append.
 ``results.csv``
-    long format, one row per (task, planner, seed, report time) with :data:`COLUMNS`. An episode's
-    rows are appended in one write, flushed and fsync'ed as soon as it finishes, so a killed run
-    loses no finished episode. On resume a torn last line (the write a kill interrupted) and
-    episodes with missing rows (a row deleted by hand) are dropped and run again. Any other bad
-    row refuses the resume in one line naming the file, the line and what is wrong, and nothing is
-    written: a row that does not parse, a value that is not a finite number, a task, planner, seed
-    or report time that is not this run's, a repeated row, or a row whose digest run.json does not
-    record (edited by hand; only the rows of the one append a kill cut off from run.json's update
-    may lack one). The checks are what a reader can verify of every row; the digests catch what
-    still parses (a number changed by hand), and a folder from before the digests gets the checks
-    alone. Non-finite values are never written. When every episode is in, the file is
-    rewritten sorted (task, planner, seed, time), so its content does not depend on the order in
-    which workers finished.
+    :mod:`ipp_bench.eval.results_csv`. An episode's rows are appended in one write, flushed and
+    fsync'ed as soon as it finishes, so a killed run loses no finished episode. On resume a torn
+    last line (the write a kill interrupted) and episodes with missing rows (a row deleted by hand)
+    are dropped and run again. Any other bad row refuses the resume in one line naming the file,
+    the line and what is wrong, and nothing is written
+    (:func:`~ipp_bench.eval.results_csv.checked_rows`): a row that does not parse, a value that is
+    not a finite number, a task, planner, seed or report time that is not this run's, a repeated
+    row, or a row whose digest run.json does not record (edited by hand; only the rows of the one
+    append a kill cut off from run.json's update may lack one). A run.json without ``rows`` gets
+    the other checks alone. When every episode is in, the file is rewritten sorted (task, planner,
+    seed, time), so its content does not depend on the order in which workers finished.
 ``published_results.csv``
     only in a folder paired with a published board (``--against``): a copy of that board's
     results.csv (whose sha256 run.json records), so the report is made from this folder alone.
@@ -37,182 +33,31 @@ leaves no ``run.json`` behind.
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
 import json
-import math
 import os
-import platform
 import shutil
-import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
 from ..core.data import OutputWriteError, check_output_dir, write_atomically
-from ..core.mission import REPORT_KEYS
-from .plan import Plan, fingerprint_differences, report_times
+from .machine import machine_info
+from .plan import Plan, report_times
+from .results_csv import (
+    RESULTS_CSV,
+    ROW_DIGEST_HEX,
+    BadRow,
+    checked_rows,
+    finite_problem,
+    format_header,
+    format_rows,
+    row_digest,
+)
+from .run_json import RUN_JSON, ResultsMismatchError, new_meta, resumed_meta
 
-RESULTS_CSV = "results.csv"
-RUN_JSON = "run.json"
 #: the copy of a published board's results.csv in a folder paired with it (``--against``)
 PUBLISHED_CSV = "published_results.csv"
-FORMAT_VERSION = 1
-#: fingerprint keys that older folders lack: filled in (with a note) instead of refusing the folder
-ADDED_FINGERPRINT_KEYS = ("planner_fingerprints",)
-
-KEY_COLUMNS = ("task", "planner", "seed")
-TIMING_COLUMNS = ("decision_time_mean_s", "decision_time_max_s", "episode_wall_s")
-COLUMNS = (*KEY_COLUMNS, "time_s", *REPORT_KEYS, "decisions", *TIMING_COLUMNS)
-_INT_COLUMNS = ("seed", "decisions")
-_FLOAT_COLUMNS = tuple(c for c in COLUMNS if c not in KEY_COLUMNS + _INT_COLUMNS or c == "time_s")
-
-
-class ResultsMismatchError(ValueError):
-    """``out_dir`` holds results made with other arguments, or cannot be used."""
-
-
-#: hex digits of each row's digest in run.json (``rows.digests``): 32 bits, so a row edited by hand
-#: passes for another row of a 10 000-row board with a chance of about 2 in a million
-ROW_DIGEST_HEX = 8
-
-
-def row_digest(line: str) -> str:
-    """The digest run.json records of one results.csv line (without its newline)."""
-    return hashlib.blake2b(line.encode(), digest_size=ROW_DIGEST_HEX // 2).hexdigest()
-
-
-#: the CPU flags that change floating-point results (which BLAS kernels run, fused multiply-adds)
-FLOAT_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f")
-#: the packages whose versions decide the numbers, recorded where installed
-RECORDED_PACKAGES = ("numpy", "scipy", "torch", "mujoco", "dm-control")
-
-
-def machine_info() -> dict[str, Any]:
-    """Where rows are made: CPU model, the flags of :data:`FLOAT_FLAGS` it has, cores, OS, Python
-    and the versions of :data:`RECORDED_PACKAGES` that are installed (none is imported)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    cpu, flags = platform.processor() or platform.machine(), set()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                key, _, value = line.partition(":")
-                if key.strip() == "model name" and cpu in ("", platform.processor() or platform.machine()):
-                    cpu = value.strip()
-                elif key.strip() in ("flags", "Features") and not flags:
-                    flags = set(value.split())
-    except OSError:  # no /proc (not Linux): the model from platform, no flags
-        pass
-    packages = {}
-    for name in RECORDED_PACKAGES:
-        try:
-            packages[name] = version(name)
-        except PackageNotFoundError:
-            continue
-    return {"cpu": cpu, "cpu_flags": [f for f in FLOAT_FLAGS if f in flags], "cores": os.cpu_count(),
-            "os": f"{platform.system()} {platform.machine()}", "python": platform.python_version(),
-            "packages": packages}
-
-
-def describe_machine(info: dict[str, Any]) -> str:
-    """One line of :func:`machine_info`: ``CPU (N cores; avx2, fma), OS; Python X, numpy Y, ...``."""
-    flags = ", ".join(info.get("cpu_flags") or []) or "no vector flags known"
-    packages = ", ".join(f"{k} {v}" for k, v in (info.get("packages") or {}).items())
-    return (f"{info.get('cpu', '?')} ({info.get('cores', '?')} cores; {flags}), {info.get('os', '?')}; "
-            f"Python {info.get('python', '?')}" + (f", {packages}" if packages else ""))
-
-
-def _finite_problem(row: dict[str, Any]) -> str | None:
-    """The first value of a results row that is not a finite number, said as ``column = value ...``."""
-    for c in _FLOAT_COLUMNS:
-        value = row[c]
-        if not (isinstance(value, (int, float)) and math.isfinite(value)):
-            return f"{c} = {value!r} is not a finite number"
-    return None
-
-
-def _format_cell(value: Any) -> str:
-    if isinstance(value, float):
-        return repr(value)  # shortest round-trip form: the same number reads back bit for bit
-    return str(value)
-
-
-def format_header() -> str:
-    return ",".join(COLUMNS) + "\n"
-
-
-def format_rows(rows: Iterable[dict[str, Any]]) -> str:
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    for row in rows:
-        writer.writerow([_format_cell(row[c]) for c in COLUMNS])
-    return buf.getvalue()
-
-
-def _parse_row(fields: list[str]) -> dict[str, Any]:
-    """One row typed; a ValueError says which field is wrong (``seed = '1.5' is not an integer``)."""
-    if len(fields) != len(COLUMNS):
-        raise ValueError(f"{len(fields)} fields, expected {len(COLUMNS)} ({','.join(COLUMNS)})")
-    row: dict[str, Any] = dict(zip(COLUMNS, fields))
-    for c in _INT_COLUMNS:
-        try:
-            row[c] = int(row[c])
-        except ValueError:
-            raise ValueError(f"{c} = {row[c]!r} is not an integer") from None
-    for c in _FLOAT_COLUMNS:
-        try:
-            row[c] = float(row[c])
-        except ValueError:
-            raise ValueError(f"{c} = {row[c]!r} is not a number") from None
-    return row
-
-
-def read_results(path: str | Path) -> list[dict[str, Any]]:
-    """The rows of a results.csv (typed); a torn last line (a killed append) is ignored.
-
-    Raises:
-        ValueError: ``FILE:LINE: what is wrong`` for the first row that does not parse or holds a
-            value that is not a finite number (a bad row is never skipped silently).
-    """
-    return _parse_text(Path(path).read_text(), Path(path))[0]
-
-
-def _complete_lines(text: str) -> tuple[list[str], list[str]]:
-    """The lines of a results.csv text without a torn last line (a killed append), and a note if one
-    was dropped."""
-    if text and not text.endswith("\n"):
-        cut = text.rfind("\n") + 1
-        return text[:cut].splitlines(), [f"dropped a torn last line ({len(text) - cut} bytes, from an "
-                                         "interrupted write)"]
-    return text.splitlines(), []
-
-
-def _parse_text(text: str, path: Path | str = RESULTS_CSV) -> tuple[list[dict[str, Any]], list[str]]:
-    """Rows of a results.csv text, and notes on what was dropped (a torn last line).
-
-    Raises:
-        ValueError: another header, or ``FILE:LINE: what`` for a row that does not parse or is not finite.
-    """
-    lines, notes = _complete_lines(text)
-    if not lines:
-        return [], notes
-    header = next(csv.reader([lines[0]]))
-    if tuple(header) != COLUMNS:
-        raise ValueError(f"{path}:1: the columns are {header}, expected {list(COLUMNS)}")
-    rows = []
-    for i, fields in enumerate(csv.reader(lines[1:]), start=2):
-        try:
-            row = _parse_row(fields)
-        except ValueError as err:
-            raise ValueError(f"{path}:{i}: {err}") from None
-        problem = _finite_problem(row)
-        if problem:
-            raise ValueError(f"{path}:{i}: {problem}")
-        rows.append(row)
-    return rows, notes
 
 
 def _sort_key(plan: Plan):
@@ -318,25 +163,9 @@ class ResultsStore:
                 raise ResultsMismatchError(f"{path} is {kind}, not a file: move it away, or pass a new --out DIR")
 
     def _new_meta(self, created: str | None = None) -> dict[str, Any]:
-        meta = {
-            "format": FORMAT_VERSION,
-            "fingerprint": self.plan.fingerprint(),
-            "quick": self.plan.quick,
-            "tasks": list(self.plan.tasks),
-            "planners": list(self.plan.planners),
-            "episodes": self.plan.episodes,
-            "seeds": list(self.plan.seeds),
-            "ipp_bench_version": __version__,
-            "command": self.command,
-            "created": created or time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            "machine": machine_info(),
-        }
-        if self.plan.against is not None:
-            meta["against"] = dict(self.plan.against)
-        return meta
+        return new_meta(self.plan, self.command, created)
 
     def _check_fingerprint(self) -> None:
-        fingerprint = self.plan.fingerprint()
         if not self.run_json.exists():
             if self.csv_path.exists() and self.csv_path.stat().st_size > 0:
                 raise ResultsMismatchError(
@@ -354,66 +183,8 @@ class ResultsStore:
             raise ResultsMismatchError(
                 f"{self.run_json} is unreadable ({err}); pass a new --out DIR (or delete {self.dir})") from None
         self._stored_meta = stored_meta
-        stored_episodes = (stored.pop("episodes", None) or stored_meta.get("episodes")
-                           or len(stored_meta.get("seeds", [])))
-        added = [k for k in ADDED_FINGERPRINT_KEYS if k not in stored]
-        if "planner_fingerprints" in added:
-            self._refuse_unfingerprinted_rows(fingerprint.get("planner_fingerprints") or {})
-        for k in added:
-            stored[k] = fingerprint[k]
-        if self.rerun:  # their rows go (see _load): what they were made with no longer matters
-            pf = dict(stored.get("planner_fingerprints") or {})
-            now = fingerprint.get("planner_fingerprints") or {}
-            for p in self.rerun:
-                pf.pop(p, None)
-                if p in now:
-                    pf[p] = now[p]
-            stored["planner_fingerprints"] = pf
-        differences = fingerprint_differences(stored, fingerprint)
-        if differences:
-            lines = [f"  {k}: {line}" for k, ls in differences.items() for line in ls]
-            raise ResultsMismatchError(
-                f"{self.dir} holds results made with different arguments ({', '.join(differences)}):\n"
-                + "\n".join(lines)
-                + f"\nTo resume that run, repeat its arguments ({RUN_JSON} has them); for these arguments "
-                f"pass a new --out DIR (or delete {self.dir}). Results of different arguments are never mixed.")
-        if stored_episodes and self.plan.episodes < int(stored_episodes):
-            raise ResultsMismatchError(
-                f"{self.dir} holds {stored_episodes} episodes per task and planner; --episodes {self.plan.episodes} "
-                f"would drop some: pass --episodes {stored_episodes} or more (more episodes extend the folder)")
-        if added:
-            self.notes.append(f"{RUN_JSON} predates {', '.join(added)}; recorded them now")
-        # the same arguments, recorded another way (digests of the task configs, fields added since
-        # at their defaults, 30 for 30.0): record them as today's code does
-        rerecord = stored != fingerprint
-        if rerecord and not added:
-            self.notes.append(f"{RUN_JSON} records the same arguments in an older form; rewrote it in today's")
-        if (added or rerecord or self.rerun or self.plan.episodes != stored_episodes
-                or "episodes" in stored_meta.get("fingerprint", {})):
-            if self.plan.episodes != stored_episodes:
-                self.notes.append(f"extending {self.dir} from {stored_episodes} to {self.plan.episodes} episodes "
-                                  "per task and planner (the first seeds are the same)")
-            meta = self._new_meta(stored_meta.get("created"))
-            meta["machine"] = stored_meta.get("machine")  # where the kept rows were made (None: not recorded)
-            if "other_machines" in stored_meta:
-                meta["other_machines"] = stored_meta["other_machines"]
-            meta["quick"] = bool(stored_meta.get("quick", self.plan.quick))  # the label stays the folder's
-            meta["command"] = self.command or stored_meta.get("command")
-            self._meta = meta
-
-    def _refuse_unfingerprinted_rows(self, fingerprints: dict[str, dict[str, str]]) -> None:
-        """A folder from before planner fingerprints were recorded may hold rows of a planner whose
-        decisions depend on more than its spec (the attention planner's checkpoint, the MCTS search,
-        the CMA-ES evaluation): what made them is unknown, so they cannot be kept under today's."""
-        if not fingerprints or not self.csv_path.exists():
-            return
-        with self.csv_path.open(newline="") as fh:
-            held = sorted({row.get("planner") for row in csv.DictReader(fh)} & set(fingerprints))
-        if held:
-            raise ResultsMismatchError(
-                f"{self.dir} predates planner fingerprints and holds rows of {', '.join(held)}, whose decisions "
-                f"depend on what it does not record (a checkpoint, a search form): delete those rows from "
-                f"{self.csv_path.name} to fly them again with today's, or pass a new --out DIR")
+        self._meta, notes = resumed_meta(stored_meta, stored, self.plan, self.command, self.rerun, self.csv_path)
+        self.notes += notes
 
     def _load(self) -> None:
         """Read finished episodes; note torn lines and incomplete episodes (dropped at begin())."""
@@ -455,72 +226,31 @@ class ResultsStore:
 
     def _checked_rows(self, text: str, expected: dict[str, tuple[float, ...]]
                       ) -> tuple[list[dict[str, Any]], list[str], list[str]]:
-        """The rows of results.csv ``text``, notes, and the digest of each line; every row must parse,
-        be finite, be an episode and report time of this run, appear once, and (where run.json records
-        digests) be a row this run wrote. A torn last line (a killed append) is the one thing dropped.
+        """:func:`~ipp_bench.eval.results_csv.checked_rows` of ``text`` against this run and the
+        digests run.json records (where it records them).
 
         Raises:
             ResultsMismatchError: ``FILE:LINE: what is wrong``, the first bad row; nothing is changed.
         """
-        lines, notes = _complete_lines(text)
-        if not lines:
-            return [], notes, []
-        header = next(csv.reader([lines[0]]))
-        if tuple(header) != COLUMNS:
-            raise ResultsMismatchError(f"{self.csv_path}:1: the columns are {header}, expected {list(COLUMNS)}; "
-                                       f"not a results file of this version: pass a new --out DIR")
         recorded = (self._stored_meta or {}).get("rows")
         known, count = None, 0
         if isinstance(recorded, dict) and isinstance(recorded.get("digests"), str):
             d = recorded["digests"]
             known = {d[i:i + ROW_DIGEST_HEX] for i in range(0, len(d), ROW_DIGEST_HEX)}
             count = int(recorded.get("count", len(d) // ROW_DIGEST_HEX))
-        seeds, planners = set(self.plan.seeds), set(self.plan.planners)
-        rows, digests, seen = [], [], {}
-        tail_key = None
-        for number, (line, fields) in enumerate(zip(lines[1:], csv.reader(lines[1:])), start=2):
-            def bad(what: str, number: int = number) -> ResultsMismatchError:
-                return ResultsMismatchError(
-                    f"{self.csv_path}:{number}: {what}; restore the line, or delete it to fly its episode again "
-                    "(the other rows are kept), or pass a new --out DIR")
-
-            try:
-                row = _parse_row(fields)
-            except ValueError as err:
-                raise bad(str(err)) from None
-            problem = _finite_problem(row)
-            if problem:
-                raise bad(problem)
-            if row["task"] not in expected:
-                raise bad(f"task {row['task']!r} is not a task of this run ({', '.join(expected)})")
-            if row["planner"] not in planners:
-                raise bad(f"planner {row['planner']!r} is not a planner of this run ({', '.join(self.plan.planners)})")
-            if row["seed"] not in seeds:
-                raise bad(f"seed {row['seed']} is not an episode seed of this run")
-            if row["time_s"] not in expected[row["task"]]:
-                raise bad(f"time_s = {row['time_s']!r} is not a report time of {row['task']} "
-                          f"({', '.join(f'{t:g}' for t in expected[row['task']])})")
-            key = (row["task"], row["planner"], row["seed"], row["time_s"])
-            if key in seen:
-                raise bad(f"repeats line {seen[key]} ({row['task']} {row['planner']} seed {row['seed']} at "
-                          f"{row['time_s']:g} s)")
-            seen[key] = number
-            digest = row_digest(line)
-            if known is not None and digest not in known:
-                # rows past the recorded count are those of the append a kill cut off from run.json's
-                # update: one episode at most
-                episode = key[:3]
-                if number - 2 < count or (tail_key is not None and tail_key != episode):
-                    raise bad(f"not a row this run wrote (its digest is not among those {RUN_JSON} records: "
-                              "edited by hand?)")
-                tail_key = episode
-            rows.append(row)
-            digests.append(digest)
-        return rows, notes, digests
+        try:
+            return checked_rows(text, expected, self.plan.planners, self.plan.seeds, known, count)
+        except BadRow as err:
+            if err.line == 1:
+                raise ResultsMismatchError(f"{self.csv_path}:1: {err.what}; not a results file of this version: "
+                                           "pass a new --out DIR") from None
+            raise ResultsMismatchError(
+                f"{self.csv_path}:{err.line}: {err.what}; restore the line, or delete it to fly its episode again "
+                "(the other rows are kept), or pass a new --out DIR") from None
 
     def _write_meta(self, meta: dict[str, Any]) -> None:
         meta["rows"] = {"count": len(self._digests), "digests": "".join(self._digests)}
-        _atomic_write(self.run_json, json.dumps(meta, indent=2) + "\n")
+        write_atomically(self.run_json, lambda tmp: tmp.write_text(json.dumps(meta, indent=2) + "\n"))
         self._stored_meta = meta
 
     # -- writing --------------------------------------------------------------------------------------
@@ -538,7 +268,7 @@ class ResultsStore:
             self._write_meta(meta)
             meta = None
         if rewrite is not None:
-            _atomic_write(self.csv_path, format_header() + body)
+            write_atomically(self.csv_path, lambda tmp: tmp.write_text(format_header() + body))
         if meta is not None or (rewrite is not None and self._stored_meta is not None and
                                 self._stored_meta.get("rows", {}).get("digests") != "".join(self._digests)):
             self._write_meta(meta if meta is not None else dict(self._stored_meta))
@@ -552,7 +282,7 @@ class ResultsStore:
             OutputWriteError: the file could not be written.
         """
         for row in rows:
-            problem = _finite_problem(row)
+            problem = finite_problem(row)
             if problem:
                 raise ValueError(f"{row['task']} {row['planner']} seed {row['seed']} at {row['time_s']} s: "
                                  f"{problem}; the episode's rows are not written")
@@ -584,7 +314,8 @@ class ResultsStore:
         rows = sorted((r for v in self.done.values() for r in v), key=_sort_key(self.plan))
         body = format_rows(rows)
         digests = [row_digest(line) for line in body.splitlines()]
-        _atomic_write(self.csv_path, format_header() + body)  # the same rows: run.json's digests still hold
+        # the same rows: the digests run.json records still hold while it is rewritten
+        write_atomically(self.csv_path, lambda tmp: tmp.write_text(format_header() + body))
         if digests != self._digests:
             self._digests = digests
             self._write_meta(dict(self._stored_meta or self._new_meta()))
@@ -627,20 +358,4 @@ def copy_published(plan: Plan, out_dir: str | Path) -> Path:
     return target
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    write_atomically(path, lambda tmp: tmp.write_text(text))
-    try:  # make the rename itself durable
-        dfd = os.open(path.parent, os.O_RDONLY)
-    except OSError:  # pragma: no cover
-        return
-    try:
-        os.fsync(dfd)
-    except OSError:  # pragma: no cover (file systems that refuse fsync on a folder)
-        pass
-    finally:
-        os.close(dfd)
-
-
-__all__ = ["COLUMNS", "PUBLISHED_CSV", "RESULTS_CSV", "RUN_JSON", "TIMING_COLUMNS", "ResultsMismatchError",
-           "describe_machine", "machine_info", "row_digest",
-           "ResultsStore", "copy_published", "format_header", "format_rows", "read_results"]
+__all__ = ["PUBLISHED_CSV", "ResultsStore", "copy_published"]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ipp_bench.eval.leaderboard import run_leaderboard
 from ipp_bench.eval.plan import make_plan
-from ipp_bench.eval.results import RESULTS_CSV, TIMING_COLUMNS, read_results
+from ipp_bench.eval.results_csv import RESULTS_CSV, TIMING_COLUMNS, read_results
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 

@@ -10,7 +10,9 @@ from lb_helpers import assert_same_results, results, run_tiny, tiny_plan
 
 from ipp_bench.cli import main
 from ipp_bench.eval.against import against_plan
-from ipp_bench.eval.results import PUBLISHED_CSV, RESULTS_CSV, RUN_JSON
+from ipp_bench.eval.results import PUBLISHED_CSV
+from ipp_bench.eval.results_csv import RESULTS_CSV
+from ipp_bench.eval.run_json import RUN_JSON
 
 NEW = "coverage:overlap=0.5"
 

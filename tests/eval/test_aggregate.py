@@ -11,7 +11,9 @@ import pytest
 from scipy import stats
 
 from ipp_bench.eval import aggregate as A
-from ipp_bench.eval.report import Aggregate, aggregate_estimates, aggregate_section, power_section
+from ipp_bench.eval import power
+from ipp_bench.eval.markdown_stats import aggregate_estimates, aggregate_section, power_section
+from ipp_bench.eval.tables import EpisodeTable
 
 
 def board_of(scores: dict[str, np.ndarray]) -> A.Board:
@@ -152,7 +154,7 @@ def test_ranks_tie_the_planners_the_data_cannot_separate():
               "oracle": base + 2.0}
     est = A.estimate(board_of(scores), n_resamples=500)
     assert est.ranks == {"best": 1, "b": 2, "c": 2}  # the oracle is never ranked
-    section = aggregate_section(Aggregate([]), board_of(scores), est)
+    section = aggregate_section(EpisodeTable([]), board_of(scores), est)
     rows = [line for line in section.splitlines() if line.startswith("| ") and "`" in line][:4]
     assert rows[0].startswith("| 1 | `best` |") and rows[1].startswith("| 2= |") and rows[2].startswith("| 2= |")
     assert rows[3].startswith("| – | `oracle` (reference) |")
@@ -197,30 +199,30 @@ def test_what_cannot_be_aggregated_is_left_out_with_a_note():
 # the power rule
 # ------------------------------------------------------------------------------------------------
 def test_episodes_needed_is_the_normal_rule_rounded_up():
-    assert A.episodes_needed(10.0, 3.0) == math.ceil((1.96 * 10 / 3) ** 2) == 43
-    assert A.episodes_needed(0.0, 3.0) == 2  # an interval needs two episodes
-    assert A.episodes_needed(3.0 / 1.96, 1.0) == 9  # exactly 9: no rounding up past it
+    assert power.episodes_needed(10.0, 3.0) == math.ceil((1.96 * 10 / 3) ** 2) == 43
+    assert power.episodes_needed(0.0, 3.0) == 2  # an interval needs two episodes
+    assert power.episodes_needed(3.0 / 1.96, 1.0) == 9  # exactly 9: no rounding up past it
     with pytest.raises(ValueError, match="half-width"):
-        A.episodes_needed(1.0, 0.0)
+        power.episodes_needed(1.0, 0.0)
 
 
 def test_power_rule_from_the_paired_differences():
     greedy = [50.0, 60.0, 55.0, 70.0, 65.0]
     mine = [52.0, 61.0, 60.0, 69.0, 71.0]
     rows = rows_of({"greedy": {100.0: greedy}, "mine": {100.0: mine}})
-    (cell,) = A.power_rule(rows, "greedy", half_width=1.0)
+    (cell,) = power.power_rule(rows, "greedy", half_width=1.0)
     d = np.subtract(mine, greedy)
     assert cell.sd == pytest.approx(np.std(d, ddof=1)) and cell.episodes == 5
     _, lo, hi = A.bootstrap_ci(d)
     assert cell.half_width == pytest.approx(max(d.mean() - lo, hi - d.mean()))
     assert cell.needed == math.ceil((1.96 * np.std(d, ddof=1) / 1.0) ** 2)
-    assert A.needed_per_task([cell]) == {"ipp_bench/Toy-v0": cell}
+    assert power.needed_per_task([cell]) == {"ipp_bench/Toy-v0": cell}
 
 
 def test_the_power_section_names_the_rule_and_the_cells():
     rows = rows_of({"greedy": {100.0: [50.0, 60.0, 55.0]}, "mine": {100.0: [52.0, 61.0, 60.0]}})
     rows = [dict(r, trace_roi=1.0, rmse_roi=0.1, rmse_reduction_pct=1.0, decision_time_mean_s=0.01) for r in rows]
-    text = power_section(Aggregate(rows), "greedy", 3.0)
+    text = power_section(EpisodeTable(rows), "greedy", 3.0)
     assert "n = ceil((1.96 sd / 3)^2)" in text and "| **Toy-v0** | 100 | 3 |" in text
     sd = np.std([2.0, 1.0, 5.0], ddof=1)
     assert f"{sd:.1f} (`mine`)" in text
@@ -230,7 +232,7 @@ def test_the_aggregate_of_a_report_has_its_interval_and_profile():
     rows = rows_of({"random": {50.0: [10.0, 30.0, 20.0]}, "greedy": {50.0: [60.0, 40.0, 50.0]},
                     "oracle": {50.0: [70.0, 90.0, 80.0]}})
     rows = [dict(r, trace_roi=1.0, rmse_roi=0.1, rmse_reduction_pct=1.0, decision_time_mean_s=0.01) for r in rows]
-    board, est = aggregate_estimates(Aggregate(rows))
+    board, est = aggregate_estimates(EpisodeTable(rows))
     assert est is not None and est.iqm["greedy"][0] == pytest.approx(0.5)  # 0.5 +- 1/6: trimmed mean 0.5
     point, low, high = est.profile["greedy"]
     assert np.all(low <= point + 1e-12) and np.all(point <= high + 1e-12)

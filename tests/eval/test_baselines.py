@@ -43,9 +43,11 @@ import pytest
 from ipp_bench.core.mission import REPORT_KEYS
 from ipp_bench.envs import task_config, task_spec
 from ipp_bench.eval.executors import make_executor
+from ipp_bench.eval.fingerprint import config_differences, task_config_record
 from ipp_bench.eval.leaderboard import run_job
-from ipp_bench.eval.plan import config_differences, make_plan, task_config_record
-from ipp_bench.eval.results import RESULTS_CSV, RUN_JSON, read_results
+from ipp_bench.eval.plan import make_plan
+from ipp_bench.eval.results_csv import RESULTS_CSV, read_results
+from ipp_bench.eval.run_json import RUN_JSON
 from ipp_bench.planners import parse_spec
 
 REPO = Path(__file__).resolve().parents[2]
@@ -75,7 +77,7 @@ EXTRA_MODULES = {"attention": "torch", "cmaes": "cma"}
 V0_ATTENTION = "attention:checkpoint=ipp_bench/policies/checkpoints/attention_grid15.pt,stall_legs=0"
 #: folder -> {committed planner label: the spec (paths relative to the repository root) that flies its rows}
 #: (and the reference forms of MCTS and CMA-ES, the defaults when they were flown)
-REFLIGHT_SPECS = {"v0": {"attention": V0_ATTENTION, "mcts": "mcts:search=reference",
+REFLIGHT_SPECS = {"v0": {"attention": V0_ATTENTION, "mcts": "mcts:simulations=100,search=reference",
                          "cmaes": "cmaes:evaluation=reference"},
                   "v0/quick": {"attention": V0_ATTENTION, "mcts:simulations=8": "mcts:simulations=8,search=reference",
                                "cmaes:max_evals=36": "cmaes:max_evals=36,evaluation=reference"}}

@@ -22,7 +22,8 @@ from pathlib import Path
 import pytest
 from lb_helpers import results, run_tiny
 
-from ipp_bench.eval.results import RESULTS_CSV, RUN_JSON, ResultsMismatchError
+from ipp_bench.eval.results_csv import RESULTS_CSV
+from ipp_bench.eval.run_json import RUN_JSON, ResultsMismatchError
 
 REPO = Path(__file__).resolve().parents[2]
 

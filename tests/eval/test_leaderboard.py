@@ -19,13 +19,9 @@ from lb_helpers import (
 )
 
 import ipp_bench.eval.leaderboard as lb
-from ipp_bench.eval.results import (
-    COLUMNS,
-    RESULTS_CSV,
-    ResultsMismatchError,
-    ResultsStore,
-    read_results,
-)
+from ipp_bench.eval.results import ResultsStore
+from ipp_bench.eval.results_csv import COLUMNS, RESULTS_CSV, read_results
+from ipp_bench.eval.run_json import ResultsMismatchError
 
 REQUIRED = ("task", "planner", "seed", "time_s", "trace_roi", "rmse_roi", "uncertainty_reduction_pct",
             "rmse_reduction_pct", "decisions", "decision_time_mean_s", "decision_time_max_s")
@@ -180,7 +176,7 @@ def test_a_config_field_added_since_at_its_default_keeps_the_folder(reference_co
 
 
 def test_a_missing_field_away_from_its_default_is_refused_naming_it(reference_copy):
-    def drop(fp):  # the tiny run overrides budget_s (40 s, default 150 s): no older code ran that
+    def drop(fp):  # the tiny run overrides budget_s (40 s, default 150 s): a missing field means the default
         del fp["task_configs"][TASKS[0]]["mission"]["budget_s"]
     _edit_run_json(reference_copy, drop)
     with pytest.raises(ResultsMismatchError, match=r"task_configs.*\n.*Grid15Eval-v1 mission.budget_s"):
@@ -195,31 +191,12 @@ def test_a_changed_config_field_is_named(reference_copy):
         run_tiny(reference_copy)
 
 
-def test_an_older_run_json_with_config_digests_is_read(reference_copy):
-    """run.json files before field-by-field configs held a digest per task, of the config of their
-    time (without the fields added since): one that matches is kept and rewritten; one that does
-    not is refused."""
-    from ipp_bench.core.config import field_owners
-    from ipp_bench.eval.plan import DIGEST_ERA_ADDED_FIELDS, _config_digest
-
-    added_last = DIGEST_ERA_ADDED_FIELDS[-1]
-
-    def to_digests(fp):
-        for task, record in fp["task_configs"].items():
-            for name in added_last:
-                del record[field_owners()[name]][name]
-            fp["task_configs"][task] = _config_digest(record)
-    _edit_run_json(reference_copy, to_digests)
-    notes = []
-    assert run_leaderboard_with_notes(reference_copy, notes).ran == 0
-    assert any("older form" in n for n in notes)
-    assert isinstance(json.loads((reference_copy / "run.json").read_text())["fingerprint"]["task_configs"][TASKS[0]],
-                      dict)
-
-    def wrong_digest(fp):
+def test_a_config_recorded_other_than_field_by_field_is_refused_naming_it(reference_copy):
+    def to_digest(fp):
         fp["task_configs"][TASKS[0]] = "0123456789abcdef"
-    _edit_run_json(reference_copy, wrong_digest)
-    with pytest.raises(ResultsMismatchError, match="config digest 0123456789abcdef"):
+    _edit_run_json(reference_copy, to_digest)
+    with pytest.raises(ResultsMismatchError, match=r"Grid15Eval-v1 a config record that is not field by field "
+                                                   r'\("0123456789abcdef"\)'):
         run_tiny(reference_copy)
 
 
@@ -391,7 +368,7 @@ def test_the_recorded_command_leaves_rerun_out_and_a_bad_rerun_is_one_line(tmp_p
 # -- the power rule ---------------------------------------------------------------------------------
 def test_power_prints_the_episodes_each_task_needs(reference_run, capsys):
     from ipp_bench.cli import main
-    from ipp_bench.eval.aggregate import needed_per_task, power_rule
+    from ipp_bench.eval.power import needed_per_task, power_rule
 
     out, _ = reference_run
     assert main(["power", str(out), "--half-width", "2"]) == 0

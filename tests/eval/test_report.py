@@ -6,8 +6,11 @@ import numpy as np
 import pytest
 from lb_helpers import PLANNERS
 
-from ipp_bench.eval.report import Aggregate, bootstrap_ci, markdown_table, write_report
-from ipp_bench.eval.results import COLUMNS, RESULTS_CSV, format_header, format_rows
+from ipp_bench.eval.aggregate import bootstrap_ci
+from ipp_bench.eval.markdown import markdown_table
+from ipp_bench.eval.report import write_report
+from ipp_bench.eval.results_csv import COLUMNS, RESULTS_CSV, format_header, format_rows
+from ipp_bench.eval.tables import EpisodeTable
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -41,7 +44,7 @@ def synthetic_rows():
 
 
 def test_markdown_has_table_one_layout_and_bolds_the_best():
-    table = markdown_table(Aggregate(synthetic_rows()))
+    table = markdown_table(EpisodeTable(synthetic_rows()))
     lines = table.strip().splitlines()
     header = [c.strip() for c in lines[0].strip("|").split("|")]
     assert header == ["Environment", "Method", "Uncertainty reduction 50 s", "100 s",
@@ -57,7 +60,7 @@ def test_markdown_has_table_one_layout_and_bolds_the_best():
 
 def test_equal_means_are_all_bold():
     rows = [dict(r, planner=p) for r in synthetic_rows() if r["planner"] == "good" for p in ("a", "b")]
-    lines = markdown_table(Aggregate(rows)).strip().splitlines()[2:]
+    lines = markdown_table(EpisodeTable(rows)).strip().splitlines()[2:]
     assert all(line.count("**") >= 2 * 5 for line in lines)
 
 
@@ -97,15 +100,15 @@ def test_write_report_from_a_csv_alone(tmp_path):
 
 
 def test_paired_comparison_against_the_reference():
-    from ipp_bench.eval.report import paired_table
+    from ipp_bench.eval.markdown import paired_table
 
-    table = paired_table(Aggregate(synthetic_rows()), "bad")
+    table = paired_table(EpisodeTable(synthetic_rows()), "bad")
     good = [c.strip() for c in table.strip().splitlines()[2].strip("|").split("|")]
     # good - bad = 30 points at every episode and time: mean +30.0, a degenerate interval, won 3 of 3
     assert good[:2] == ["**Toy-v0**", "`good`"]
     assert good[2] == "+30.0 [+30.0, +30.0], won 3/3" and good[3] == "+30.0 [+30.0, +30.0], won 3/3"
     one = [r for r in synthetic_rows() if r["seed"] == 1]
-    single = paired_table(Aggregate(one), "bad")
+    single = paired_table(EpisodeTable(one), "bad")
     assert "+30.0, won 1/1" in single and "no interval" not in single  # the report says it once, above
 
 
@@ -119,13 +122,12 @@ def test_one_episode_says_there_is_no_interval(tmp_path):
 
 
 def test_a_non_finite_mean_is_never_bold():
-    from ipp_bench.eval.report import markdown_table
 
     rows = [dict(r) for r in synthetic_rows()]
     for r in rows:
         if r["planner"] == "good":
             r["uncertainty_reduction_pct"] = float("nan")
-    table = markdown_table(Aggregate(rows))
+    table = markdown_table(EpisodeTable(rows))
     assert "**nan" not in table, table
     bad = next(line for line in table.splitlines() if "`bad`" in line)
     assert bad.split("|")[3].strip().startswith("**"), bad
@@ -148,16 +150,16 @@ def test_the_oracle_row_is_apart_never_bold_and_every_planner_has_its_distance_t
     rows = synthetic_rows() + [dict(r, planner="oracle", uncertainty_reduction_pct=r["uncertainty_reduction_pct"] + 20,
                                     rmse_reduction_pct=r["rmse_reduction_pct"] + 20, decision_time_mean_s=1e-6)
                                for r in synthetic_rows() if r["planner"] == "good"]
-    agg = Aggregate(rows, planners=["oracle", "good", "bad"])  # even listed first, it is shown last
-    lines = markdown_table(agg).strip().splitlines()[2:]
+    table = EpisodeTable(rows, planners=["oracle", "good", "bad"])  # even listed first, it is shown last
+    lines = markdown_table(table).strip().splitlines()[2:]
     assert lines[0].startswith("| **Toy-v0** | `good` |") and "**66.0%**" in lines[0]
     assert "reference, knows the true ROI" in lines[2]
     oracle = lines[3]
     assert oracle.startswith("|  | `oracle` (reference) |") and "**" not in oracle
     from ipp_bench.eval.report import markdown_report
-    md = markdown_report(agg, reference="greedy")
+    md = markdown_report(table, reference="greedy")
     assert "each planner minus `oracle` (the headroom reference)" in md
-    ref = markdown_report(agg, reference="good")
+    ref = markdown_report(table, reference="good")
     assert "each planner minus `good`" in ref and "`oracle` (reference) | +20.0" in ref
     assert "| `bad` | -50.0" in ref.split("minus `oracle`")[1]  # bad's distance to the oracle
 
@@ -165,19 +167,19 @@ def test_the_oracle_row_is_apart_never_bold_and_every_planner_has_its_distance_t
 def test_a_quick_board_says_its_intervals_are_wide_and_points_to_the_powered_boards():
     from ipp_bench.eval.report import markdown_report
 
-    agg = Aggregate(synthetic_rows())
-    quick = markdown_report(agg, command="ipp-bench leaderboard --quick", quick=True)
+    table = EpisodeTable(synthetic_rows())
+    quick = markdown_report(table, command="ipp-bench leaderboard --quick", quick=True)
     assert "**Quick board**: 3 episodes per task and planner" in quick and "intervals are wide" in quick
     assert "powered boards in `baselines/`" in quick and "power rule" in quick
     assert quick.index("**Quick board**") < quick.index("## Aggregate over the benchmark tasks")
-    assert "Quick board" not in markdown_report(agg, command="ipp-bench leaderboard")
+    assert "Quick board" not in markdown_report(table, command="ipp-bench leaderboard")
 
 
 def test_published_rows_are_marked_and_the_new_planner_is_set_against_each():
     from ipp_bench.eval.report import markdown_report
 
-    agg = Aggregate(synthetic_rows(), published=["bad"])
-    md = markdown_report(agg, reference="bad", published_from="baselines/toy")
+    table = EpisodeTable(synthetic_rows(), published=["bad"])
+    md = markdown_report(table, reference="bad", published_from="baselines/toy")
     assert "`bad` (published)" in md and "`good` (published)" not in md
     assert "copied from the published board `baselines/toy`" in md
     versus = md.split("`good` minus each other planner, on the same episodes")[1]

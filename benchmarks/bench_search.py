@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_search.py                          # per-decision times, old vs new, in one run
+    python benchmarks/bench_search.py                          # per-decision times, reference vs fast, in one run
     python benchmarks/bench_search.py --agreement 240          # same move on 240 real decision states?
     python benchmarks/bench_search.py --paired 100 --out runs/search_paired.jsonl   # metrics over episodes
 
@@ -52,9 +52,9 @@ CMAES = "cmaes:evaluation=batched"
 def _compile_kernels() -> str:
     """Compile the fast searches' kernels now, and say how long it took."""
     t0 = time.perf_counter()
-    from ipp_bench.planners import _search_kernels
+    from ipp_bench.planners import kernels
 
-    _search_kernels.warm_up()
+    kernels.warm_up()
     return (f"numba kernels ready in {time.perf_counter() - t0:.1f} s (compiled, or loaded from numba's cache, when "
             "a fast planner is first reset; in no decision's time)")
 
@@ -170,11 +170,11 @@ def bench_timing(args) -> None:
 
 # -- agreement ----------------------------------------------------------------------------------------
 def _traced(planner) -> list:
-    """Record every tree edge the search of ``planner`` adds: (node, elapsed, action, gains, order, rates) (the
-    rollouts' moves are left out: the fast search draws them in compiled code)."""
-    inner = planner._reference if getattr(planner, "_reference", None) is not None else planner
+    """Record every tree edge the search of ``planner`` (reset) adds: (node, elapsed, action, gains, order, rates)
+    (the rollouts' moves are left out: the fast search draws them in compiled code)."""
+    model = planner._model
     log: list = []
-    original, original_rollout = inner._transition, inner._rollout
+    original, original_rollout = planner._transition, model.rollout
     rolling = [False]
 
     def transition(state, action):
@@ -183,15 +183,15 @@ def _traced(planner) -> list:
                         state.gains / state.costs))
         return original(state, action)
 
-    def rollout(state):
+    def rollout(tree, state):
         rolling[0] = True
         try:
-            return original_rollout(state)
+            return original_rollout(tree, state)
         finally:
             rolling[0] = False
 
-    inner._transition = transition
-    inner._rollout = rollout
+    planner._transition = transition
+    model.rollout = rollout
     return log
 
 

@@ -361,7 +361,7 @@ def view_for(planner: Any, env: Any) -> RobotView:
             :data:`REFERENCE_PLANNERS` as :data:`BUILT_IN` names it (neither a plugin nor a planner of a
             local registry can grant itself the truth).
     """
-    # a UAV of a team (ipp_bench.envs.team.UAVEnv), or a team-aware planner on one UAV (a team of one)
+    # a UAV of a team (ipp_bench.envs.team.UAVSeat), or a team-aware planner on one UAV (a team of one)
     team = getattr(env, "team_env", None) is not None or getattr(planner, "team", False)
     if not getattr(planner, "reads_truth", False):
         return TeamRobotView(env) if team else RobotView(env)

@@ -159,7 +159,7 @@ class RobotView:
     def node_footprint(self):
         """(N, n_cells) sparse: row i averages the cells one look from roadmap node i sees (the env's
         node features read the belief's mean and standard deviation through it)."""
-        return _ENVS[self]._footprint
+        return _ENVS[self].observer.footprint
 
     def static_key(self) -> tuple:
         """What the roadmap's static predictions (read-outs along legs, leg flight times) depend on beyond

@@ -16,7 +16,7 @@ candidate's read-outs are placed as the mission places them (the spacing rule of
 :meth:`~ipp_bench.planners.base.RobotView.leg_observations`) and turned into the camera's sparse rows, a
 footprint looked at twice folded into one row with both looks' precision (the same posterior); S and G
 are summed from the nonzero weights (each row averages at most a binning block). That is compiled code
-(:mod:`~ipp_bench.planners._search_kernels`; numba, the ``eval`` extra); then one Cholesky
+(:mod:`~ipp_bench.planners.kernels.readouts`; numba, the ``eval`` extra); then one Cholesky
 factorisation and inverse of S (LAPACK). A candidate of m rows on q cells costs O(nnz(W) q + m^3)
 instead of the O(n q m + n m^2) of its update against the whole map. ``evaluation = "reference"`` scores
 each candidate with the belief's own prediction (:meth:`~ipp_bench.planners.base.RobotView.predict_variance`),
@@ -89,10 +89,11 @@ class CMAESPlanner(ContinuousPlanner):
             raise ImportError('the cmaes planner needs pycma: pip install "ipp-bench[eval]"') from None
         super().__init__(config or CMAESConfig())
         if self.settings.evaluation == "batched":
-            from . import _search_kernels
+            from .kernels import readouts
+            from .kernels.jit import require_numba
 
-            _search_kernels.require_numba("cmaes:evaluation=batched")
-            self._kernels = _search_kernels
+            require_numba("cmaes:evaluation=batched")
+            self._kernels = readouts
 
     def fingerprint(self) -> dict[str, str]:
         """The evaluation, whose rounding can turn a step of CMA-ES: a results folder refuses the other's rows
@@ -111,8 +112,10 @@ class CMAESPlanner(ContinuousPlanner):
         self._P: np.ndarray | None = None  # the decision's covariance (None: the reference evaluation)
         self._B: np.ndarray | None = None  # (n, n) P D P, its buffer reused by the decisions
         if self.settings.evaluation == "batched":
+            from . import kernels
+
             self._camera = self._kernels.camera_args(view.sensor)
-            self._kernels.warm_up()  # compiled once per process, before the first decision's clock starts
+            kernels.warm_up()  # compiled once per process, before the first decision's clock starts
 
     def _search_box(self) -> tuple[np.ndarray, np.ndarray]:
         """The box CMA-ES searches in: the map's, or ``reach_m`` around the UAV within it."""
@@ -196,9 +199,9 @@ class CMAESPlanner(ContinuousPlanner):
 
     def _reduction(self, points: np.ndarray) -> float:
         """Tr(S^-1 G): the reduction of Tr(P) over the ROI by the read-outs from ``points`` ((K, 3) [m]; one
-        batch: the camera's rows from :func:`~ipp_bench.planners._search_kernels.camera_rows`, repeated rows
-        folded by :func:`~ipp_bench.planners._search_kernels.fold_repeated_rows`, S and G from
-        :func:`~ipp_bench.planners._search_kernels.readout_blocks`)."""
+        batch: the camera's rows from :func:`~ipp_bench.planners.kernels.readouts.camera_rows`, repeated rows
+        folded by :func:`~ipp_bench.planners.kernels.readouts.fold_repeated_rows`, S and G from
+        :func:`~ipp_bench.planners.kernels.readouts.readout_blocks`)."""
         rows = self._kernels.fold_repeated_rows(*self._kernels.camera_rows(points, *self._camera))
         if rows[3].size == 0:
             return 0.0

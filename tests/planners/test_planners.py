@@ -23,6 +23,21 @@ def test_registry_and_specs():
     assert make_planner("coverage:altitude=10").settings.altitude == 10.0
 
 
+def test_one_default_per_setting_what_the_leaderboard_flies_is_the_configs_default():
+    """The default list flies every planner at its Config's defaults, and a row's label names one planner on
+    every board: ``mcts`` is spelled with its simulations (the v0 boards' ``mcts`` rows flew 100), and --quick's
+    cheaper settings show in its specs."""
+    from ipp_bench.eval.plan import QUICK_OVERRIDES, canonical_spec
+
+    assert make_config("mcts").simulations == 24
+    assert canonical_spec("mcts") == canonical_spec("mcts:simulations=024") == "mcts:simulations=24"
+    assert canonical_spec("mcts:simulations=100,search=reference") == "mcts:search=reference,simulations=100"
+    assert canonical_spec("cmaes") == "cmaes" and make_config("cmaes").max_evals == 72
+    assert canonical_spec("mcts", QUICK_OVERRIDES["mcts"]) == "mcts:simulations=4"
+    assert canonical_spec("mcts:simulations=8", QUICK_OVERRIDES["mcts"]) == "mcts:simulations=8"  # the spec's own
+    assert canonical_spec("cmaes", QUICK_OVERRIDES["cmaes"]) == "cmaes:max_evals=36"
+
+
 @pytest.mark.parametrize("spec, match", [
     ("nope", "unknown planner 'nope'.*valid are"),
     ("mcts:sims=3", r"no setting \['sims'\].*simulations"),

@@ -15,7 +15,8 @@ import pytest
 
 from ipp_bench.core.sensor import Sensor
 from ipp_bench.envs import make_env
-from ipp_bench.planners import _search_kernels, make_planner, view_for
+from ipp_bench.planners import kernels, make_planner, view_for
+from ipp_bench.planners.kernels import jit, lowrank, node_table, readouts
 
 TASKS_15 = ["ipp_bench/Grid15Eval-v1", "ipp_bench/Hotspots15Eval-v2"]
 TASKS_30 = ["ipp_bench/Grid30Eval-v1", "ipp_bench/Hotspots30Eval-v2"]
@@ -58,17 +59,17 @@ def test_lowrank_gains_equal_the_dense_reference_along_tree_paths(task):
     view = view_for(fast, env.unwrapped)
     fast.reset(view, 7)
     ref.reset(view, 7)
-    ref_root, fast_root = ref._reference._root(obs), fast._root(obs)
+    ref_root, fast_root = ref._root(obs), fast._root(obs)
     np.testing.assert_allclose(fast_root.gains, ref_root.gains, rtol=0, atol=RTOL * ref_root.gains.max())
     compared = 0
-    for path in _paths(np.random.default_rng(0), ref._reference, ref_root, depth=6, count=4):
+    for path in _paths(np.random.default_rng(0), ref, ref_root, depth=6, count=4):
         r_state, f_state = ref_root, fast_root
         for a in path:
-            r_state, r_rew, r_disc = ref._reference._transition(r_state, a)
+            r_state, r_rew, r_disc = ref._transition(r_state, a)
             f_state, f_rew, f_disc = fast._transition(f_state, a)
             assert f_disc == r_disc and f_state.node == r_state.node
             np.testing.assert_allclose(f_rew, r_rew, rtol=RTOL)
-            ref._reference._expand_info(r_state)
+            ref._expand_info(r_state)
             fast._expand_info(f_state)
             scale = r_state.gains.max()
             assert scale > 0
@@ -93,11 +94,11 @@ def test_terms_from_the_parent_equal_those_from_the_root(task):
         for a in path:
             state, _, _ = fast._transition(state, a)
             fast._expand_info(state)
-            legs = fast._legs_of(state.node)
+            legs = fast._model._legs_of(state.node)
             if not legs.index.size:
                 continue
             assert state.parent.Pcc is not None  # scored from its parent's terms
-            full = _search_kernels.state_terms(fast._P, fast._B, state.header, state.idata, state.fdata, state.r,
+            full = lowrank.state_terms(fast._model._P, fast._model._B, state.header, state.idata, state.fdata, state.r,
                                                legs.cells, state.K, legs.m, legs.rptr, legs.nz_cell, legs.nz_w,
                                                legs.var, legs.M)
             mine = (state.gains[legs.index] * fast._unit, state.Li, state.G, state.UV, state.Pcc, state.Bcc)
@@ -113,12 +114,13 @@ def test_a_leg_that_sees_nothing_keeps_the_factor():
     env, obs = _episode("ipp_bench/Grid15Eval-v1", seed=3, steps=1)
     fast = make_planner("mcts:simulations=2,search=lowrank")
     fast.reset(view_for(fast, env.unwrapped), 3)
-    fast._table, fast._legs = _search_kernels.NodeTable(*fast._table.table.shape[:1], fast._table.k), {}  # its own
+    model = fast._model
+    model._table, model._legs = node_table.NodeTable(*model._table.table.shape[:1], model._table.k), {}  # its own
     root = fast._root(obs)
     a = int(root.order[0])
     child, _, _ = fast._transition(root, a)
-    assert not fast._table.built(child.node)  # laid out when first scored
-    fast._legs[(child.node, 0)] = None  # pretend the child's first leg sees nothing
+    assert not model._table.built(child.node)  # laid out when first scored
+    model._legs[(child.node, 0)] = None  # pretend the child's first leg sees nothing
     fast._expand_info(child)
     assert child.gains[0] == 0.0
     grandchild, reward, _ = fast._transition(child, 0)
@@ -153,15 +155,16 @@ def test_a_search_laying_out_its_legs_as_it_goes_moves_alike():
     lazy, full = (make_planner("mcts:simulations=24,search=lowrank") for _ in range(2))
     full.reset(view, 4)
     lazy.reset(view, 4)
-    lazy._table, lazy._legs = _search_kernels.NodeTable(*lazy._table.table.shape[:1], lazy._table.k), {}
+    model = lazy._model
+    model._table, model._legs = node_table.NodeTable(*model._table.table.shape[:1], model._table.k), {}
     for _ in range(2):
         lazy.rng.bit_generator.state = full.rng.bit_generator.state
         a = full.act(obs)
         assert lazy.act(obs) == a
         assert lazy.rng.bit_generator.state == full.rng.bit_generator.state
         obs, *_ = env.step(a)
-    built = int(lazy._table.table[:, _search_kernels.T_BUILT].sum())
-    assert 0 < built < lazy._table.table.shape[0]  # the nodes the searches reached, no others
+    built = int(model._table.table[:, lowrank.T_BUILT].sum())
+    assert 0 < built < model._table.table.shape[0]  # the nodes the searches reached, no others
 
 
 def test_the_kernels_compile_where_numba_has_nowhere_to_write_its_cache():
@@ -173,7 +176,7 @@ def test_the_kernels_compile_where_numba_has_nowhere_to_write_its_cache():
     code = ("import numba.core.caching as caching\n"
             "caching.CacheImpl._locator_classes = []\n"
             "import numpy as np\n"
-            "from ipp_bench.planners import _search_kernels as k\n"
+            "from ipp_bench.planners.kernels import lowrank as k\n"
             "a = np.random.default_rng(0).random(300)\n"
             "assert k._pairwise_sum(a, 0, a.size) == a.sum()\n"
             "print(type(k._pairwise_sum._cache).__name__)\n")
@@ -188,7 +191,7 @@ def test_the_rollout_draws_as_numpy_does():
     rng = np.random.default_rng(2)
     for n in list(range(1, 40)) + [128, 129, 130, 255, 256, 300, 1000, 4099, 100_003]:
         for a in (rng.random(n), rng.standard_normal(n) * 10.0 ** rng.integers(-8, 9, n)):  # the order shows
-            assert _search_kernels._pairwise_sum(a, 0, n) == a.sum()
+            assert lowrank._pairwise_sum(a, 0, n) == a.sum()
     same = 0
     for t in range(400):
         k = int(rng.integers(2, 21))
@@ -202,7 +205,7 @@ def test_the_rollout_draws_as_numpy_does():
         logits = 8.0 * rate / rate.max()
         p = np.exp(logits - logits.max())
         want = int(ref.choice(order, p=p / p.sum()))
-        assert _search_kernels._draw(mine, gains, costs, order, 8.0) == want
+        assert lowrank._draw(mine, gains, costs, order, 8.0) == want
         assert mine.bit_generator.state == ref.bit_generator.state
         same += 1
     assert same > 300
@@ -225,7 +228,7 @@ def test_lowrank_search_is_deterministic_per_seed():
 
 
 def test_fast_searches_without_numba_name_the_extra(monkeypatch):
-    monkeypatch.setattr(_search_kernels, "numba", None)
+    monkeypatch.setattr(jit, "numba", None)
     for spec in ("mcts", "cmaes", "mcts:search=lowrank", "cmaes:evaluation=batched"):  # the defaults are the fast forms
         with pytest.raises(ImportError, match=r'needs numba: pip install "ipp-bench\[eval\]"'):
             make_planner(spec)
@@ -237,9 +240,10 @@ def test_no_kernel_compiles_inside_a_decision():
     """The kernels are compiled when a fast planner is reset, for the argument types the decisions pass
     (read-only camera arrays, int64 indices): a decision never waits for numba."""
     numba = pytest.importorskip("numba")
-    _search_kernels.warm_up()
-    kernels = {name: f for name, f in vars(_search_kernels).items() if isinstance(f, numba.core.registry.CPUDispatcher)}
-    compiled = {name: len(f.signatures) for name, f in kernels.items()}
+    kernels.warm_up()
+    dispatchers = {f"{m.__name__}.{name}": f for m in kernels.MODULES for name, f in vars(m).items()
+                   if isinstance(f, numba.core.registry.CPUDispatcher)}
+    compiled = {name: len(f.signatures) for name, f in dispatchers.items()}
     for task in ("ipp_bench/Grid15Eval-v1", "ipp_bench/Hotspots30Eval-v2"):
         _episode(task, seed=3, spec="mcts:simulations=6,search=lowrank", steps=2)  # the MCTS kernels
         env = make_env(task)
@@ -248,7 +252,7 @@ def test_no_kernel_compiles_inside_a_decision():
         planner.reset(view_for(planner, env.unwrapped), 3)
         for _ in range(2):
             env.unwrapped.mission.fly_to(planner.next_waypoint())
-    assert {name: len(f.signatures) for name, f in kernels.items()} == compiled
+    assert {name: len(f.signatures) for name, f in dispatchers.items()} == compiled
 
 
 @pytest.mark.slow
@@ -262,10 +266,11 @@ def test_no_kernel_compiles_inside_a_decision_in_a_fresh_process():
     code = textwrap.dedent("""
         import numba
         from ipp_bench.envs import make_env
-        from ipp_bench.planners import _search_kernels, make_planner, view_for
-        _search_kernels.warm_up()
-        kernels = {n: f for n, f in vars(_search_kernels).items() if isinstance(f, numba.core.registry.CPUDispatcher)}
-        before = {n: len(f.signatures) for n, f in kernels.items()}
+        from ipp_bench.planners import kernels, make_planner, view_for
+        kernels.warm_up()
+        dispatchers = {f"{m.__name__}.{n}": f for m in kernels.MODULES for n, f in vars(m).items()
+                       if isinstance(f, numba.core.registry.CPUDispatcher)}
+        before = {n: len(f.signatures) for n, f in dispatchers.items()}
         for task in ("ipp_bench/Grid15Eval-v1", "ipp_bench/Hotspots30Eval-v2"):
             for spec in ("mcts:simulations=6,search=lowrank", "cmaes:max_evals=24,evaluation=batched"):
                 env = make_env(task)
@@ -277,7 +282,7 @@ def test_no_kernel_compiles_inside_a_decision_in_a_fresh_process():
                         obs, *_ = env.step(planner.act(obs))
                     else:
                         env.unwrapped.mission.fly_to(planner.next_waypoint())
-        after = {n: len(f.signatures) for n, f in kernels.items()}
+        after = {n: len(f.signatures) for n, f in dispatchers.items()}
         print({n: after[n] - before[n] for n in after if after[n] != before[n]})
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900)
@@ -328,7 +333,7 @@ def test_camera_rows_are_the_cameras_read_outs(task, persistent):
     for _ in range(20):
         pts = np.column_stack([rng.uniform(-8, width + 8, 25), rng.uniform(-8, height + 8, 25),
                                rng.uniform(alts[0], alts[-1], 25)])
-        ptr, cells, weights, var = _search_kernels.camera_rows(pts, *_search_kernels.camera_args(sensor))
+        ptr, cells, weights, var = readouts.camera_rows(pts, *readouts.camera_args(sensor))
         expected = _rows_of([o for o in (sensor.observe(p) for p in pts) if o is not None])
         assert len(expected) == var.size == ptr.size - 1
         for a, (c, w, v) in enumerate(expected):
@@ -354,7 +359,7 @@ def test_readout_blocks_are_the_dense_products():
     H = np.zeros((4, n))
     for a in range(4):
         np.add.at(H[a], cells[ptr[a]:ptr[a + 1]], weights[ptr[a]:ptr[a + 1]])
-    S, G = _search_kernels.readout_blocks(P, B, ptr, cells, weights, var)
+    S, G = readouts.readout_blocks(P, B, ptr, cells, weights, var)
     np.testing.assert_allclose(S, H @ P @ H.T + np.diag(var), rtol=1e-13)
     np.testing.assert_allclose(G, H @ B @ H.T, rtol=1e-13)
     # Tr(S^-1 G) is the reduction of the ROI's trace by the Kalman update
@@ -390,13 +395,13 @@ def test_folding_repeated_rows_keeps_the_posterior():
     cells = np.array([1, 2, 7, 8, 4, 1, 2, 7, 8, 5, 4], dtype=np.int64)
     weights = np.array([0.25] * 4 + [1.0] + [0.25] * 4 + [1.0, 1.0])
     var = np.array([0.3, 0.1, 0.5, 0.2, 0.4])
-    f_ptr, f_cells, f_w, f_var = _search_kernels.fold_repeated_rows(ptr, cells, weights, var)
+    f_ptr, f_cells, f_w, f_var = readouts.fold_repeated_rows(ptr, cells, weights, var)
     np.testing.assert_array_equal(f_ptr, [0, 4, 5, 6])
     np.testing.assert_array_equal(f_cells, [1, 2, 7, 8, 4, 5])
     np.testing.assert_allclose(f_var, [1 / (1 / 0.3 + 1 / 0.5), 1 / (1 / 0.1 + 1 / 0.4), 0.2], rtol=1e-15)
 
     def reduction(*rows):
-        S, G = _search_kernels.readout_blocks(P, B, *rows)
+        S, G = readouts.readout_blocks(P, B, *rows)
         return np.trace(np.linalg.solve(S, G))
 
     np.testing.assert_allclose(reduction(f_ptr, f_cells, f_w, f_var), reduction(ptr, cells, weights, var), rtol=1e-12)
@@ -438,6 +443,6 @@ def test_the_legs_layout_is_kept_per_roadmap():
         env.reset(seed=0)
         planner = make_planner("mcts:search=lowrank")
         planner.reset(view_for(planner, env.unwrapped), 0)
-        tables.append(planner._table)
+        tables.append(planner._model._table)
     assert tables[0] is tables[1] and tables[2] is not tables[0]
     assert tables[2].table.shape[0] == 4 * tables[0].table.shape[0]  # 30 x 30: four times the nodes

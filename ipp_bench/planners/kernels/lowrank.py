@@ -1,26 +1,9 @@
-"""Compiled kernels of the look-ahead planners' fast searches (numba, cached on disk as Python caches bytecode).
+"""The MCTS's low-rank search, compiled (``mcts:search=lowrank``, :mod:`ipp_bench.planners.mcts_lowrank`):
+:func:`state_terms` scores the legs out of a tree state from its factor, :func:`child_terms` from its parent's
+terms (:func:`step_terms`: legs from the node table), and :func:`rollout` runs a rollout, drawing as NumPy does.
 
-- both: :func:`camera_rows` turns read-out positions (:func:`leg_points`) into the camera's sparse rows
-  and :func:`fold_repeated_rows` folds a footprint looked at twice into one row; :func:`roi_product` is
-  the decision's B = P D P;
-- MCTS (:mod:`ipp_bench.planners.mcts`, ``search = "lowrank"``): :func:`node_legs` lays out a node's legs
-  (:class:`NodeTable` holds every node's, once per roadmap), :func:`state_terms` scores every leg out of
-  one tree state from the state's low-rank factor, :func:`child_terms` does the same from the terms of the
-  state's parent (:func:`step_terms`: from the table), :func:`edge_terms` adds one edge to the factor,
-  and :func:`rollout` runs a rollout of the search;
-- CMA-ES (:mod:`ipp_bench.planners.cmaes`, ``evaluation = "batched"``): :func:`readout_blocks` gives the
-  S and G of a candidate path's predicted gain ``Tr(S^-1 G)``.
-
-They compute the references' quantities in exact arithmetic (the Kalman update's ``Tr(S^-1 G)``
-regrouped; floating point reordered, nothing approximated) and are deterministic: no fast-math, a fixed
-loop order, one thread, BLAS only through ``np.dot`` (on one thread, ``ipp_bench.core._threads``).
-
-They are compiled once, when a planner that uses them is first reset (:func:`warm_up`: 10-35 s, outside
-any decision), and numba caches the machine code: in ``__pycache__`` beside this file where it may write
-there, else in its user-wide cache (``NUMBA_CACHE_DIR``, by default under ``~/.cache``), so a later process
-loads it in about a second. The cache is keyed on this file (it is compiled again after any change to it:
-the kernels call nothing outside it) and on the CPU's name and features (another CPU compiles its own).
-Where neither place can be written, every process compiles them again and nothing is cached.
+One module on purpose (over 400 lines): the rollout calls every kernel here, and numba's cache of a kernel,
+keyed on its own file, holds the kernels it calls (one changed in another file would leave it stale).
 """
 
 from __future__ import annotations
@@ -29,31 +12,10 @@ import math
 
 import numpy as np
 
-from ..core.mission import leg_length, leg_samples
-from .base import MIN_LEG_M
-
-try:
-    import numba
-except ImportError:  # pragma: no cover (the eval extra installs it)
-    numba = None
+from .jit import kernel
 
 
-def require_numba(what: str) -> None:
-    """Raise, naming the extra to install, when numba is missing."""
-    if numba is None:
-        raise ImportError(f'{what} needs numba: pip install "ipp-bench[eval]"')
-
-
-def _jit(fn):
-    if numba is None:
-        return fn
-    try:
-        return numba.njit(cache=True, fastmath=False, nogil=True)(fn)
-    except RuntimeError:  # no place numba may write its cache (a read-only install and home): compile per process
-        return numba.njit(cache=False, fastmath=False, nogil=True)(fn)
-
-
-@_jit
+@kernel
 def _cholesky_inverse(S, m, Linv, j, L):
     """``Linv[j, :m, :m]`` = L^-1 with L L^T = S[:m, :m] (lower triangular; S symmetric positive definite;
     ``Linv[j]`` zero on entry; ``L``: room for the factor)."""
@@ -79,7 +41,7 @@ def _cholesky_inverse(S, m, Linv, j, L):
             Linv[j, i, c] = s / L[i, i]
 
 
-@_jit
+@kernel
 def _trace_inv_product(Linv, j, G, m):
     """Tr(S^-1 G) = sum_ik (L^-T L^-1)_ik G_ik for symmetric G (L^-1: ``Linv[j]``)."""
     total = 0.0
@@ -92,70 +54,10 @@ def _trace_inv_product(Linv, j, G, m):
     return total
 
 
-@_jit
-def node_legs(leg_rows, row_ptr, cells, weights, var):
-    """A roadmap node's legs laid out for :func:`state_terms`, from their read-outs in sparse rows.
 
-    Leg i has rows ``leg_rows[i]`` to ``leg_rows[i + 1]`` of (``row_ptr``, ``cells``, ``weights``, ``var``)
-    (as :func:`camera_rows` gives them; none: the leg sees nothing). The b legs that see something are
-    padded to M rows (padding: no weights, unit variance) over the union of their q cells.
-
-    Returns:
-        index (b,) the legs that see something; union (q,) their cells, ascending; m (b,) their rows;
-        var (b, M); nz_ptr, nz_row, nz_cell, nz_w: leg j's weights (row, index in ``union``, value) between
-        ``nz_ptr[j]`` and ``nz_ptr[j + 1]``, row by row; rptr (b, M + 1): where each of leg j's rows starts
-        among them (row a: ``rptr[j, a]`` to ``rptr[j, a + 1]``; padding rows are empty).
-    """
-    k = leg_rows.size - 1
-    b = 0
-    M = 1
-    for i in range(k):
-        rows = leg_rows[i + 1] - leg_rows[i]
-        if rows > 0:
-            b += 1
-            M = max(M, rows)
-    index = np.empty(b, dtype=np.int64)
-    m = np.empty(b, dtype=np.int64)
-    j = 0
-    for i in range(k):
-        rows = leg_rows[i + 1] - leg_rows[i]
-        if rows > 0:
-            index[j] = i
-            m[j] = rows
-            j += 1
-    union = np.unique(cells)
-    local = np.empty(cells.size, dtype=np.int64)
-    for p in range(cells.size):
-        local[p] = np.searchsorted(union, cells[p])
-    var_pad = np.ones((b, M))
-    nz_ptr = np.zeros(b + 1, dtype=np.int64)
-    for j in range(b):
-        r0 = leg_rows[index[j]]
-        nz_ptr[j + 1] = nz_ptr[j] + row_ptr[r0 + m[j]] - row_ptr[r0]
-    nz_row = np.empty(nz_ptr[b], dtype=np.int64)
-    nz_cell = np.empty(nz_ptr[b], dtype=np.int64)
-    nz_w = np.empty(nz_ptr[b])
-    rptr = np.empty((b, M + 1), dtype=np.int64)
-    for j in range(b):
-        r0 = leg_rows[index[j]]
-        t = nz_ptr[j]
-        for a in range(M + 1):
-            rptr[j, a] = nz_ptr[j + 1]
-        for a in range(m[j]):
-            var_pad[j, a] = var[r0 + a]
-            rptr[j, a] = t
-            for p in range(row_ptr[r0 + a], row_ptr[r0 + a + 1]):
-                nz_row[t] = a
-                nz_cell[t] = local[p]
-                nz_w[t] = weights[p]
-                t += 1
-    return index, union, m, var_pad, nz_ptr, nz_row, nz_cell, nz_w, rptr
-
-
-@_jit
+@kernel
 def _edge_rows(P, B, header, idata, fdata, e, cells, UV):
-    """Edge ``e``'s block of ``UV`` = [Ut | Vt] on the q cells ``cells``: its rows ``r_e`` to ``r_e + m`` from
-    the rows before it (:func:`_factor_rows` reads the edges)."""
+    """Edge ``e``: rows ``r_e`` to ``r_e + m`` of ``UV`` = [Ut | Vt] on the cells ``cells``, from the rows before it."""
     q = cells.size
     m, re, nnz, fo, io = header[e, 0], header[e, 1], header[e, 2], header[e, 3], header[e, 4]
     E = np.zeros((m, 2 * q))  # [(H P0)[:, c] | (H B0)[:, c]]
@@ -173,7 +75,7 @@ def _edge_rows(P, B, header, idata, fdata, e, cells, UV):
     UV[re:re + m] = np.dot(Linv, E)
 
 
-@_jit
+@kernel
 def _factor_rows(P, B, header, idata, fdata, r, cells):
     """UV = [Ut | Vt] (r, 2 q): the rows of U^T and V^T = (P0 D U)^T on the q cells ``cells``, rebuilt edge by edge.
 
@@ -190,7 +92,7 @@ def _factor_rows(P, B, header, idata, fdata, r, cells):
     return UV
 
 
-@_jit
+@kernel
 def _legs_gains(Pcc, Bcc, leg_m, rptr, nz_cell, nz_w, var, M):
     """Each leg's gain ``Tr(S^-1 G)`` from P and P D P on the node's cells (S = W P W^T + R, G = W P D P W^T;
     entry (a, c) sums ``w_a[x] w_c[y] P[x, y]`` over the two rows' weights), with its L^-1 (L L^T = S) and G,
@@ -225,7 +127,7 @@ def _legs_gains(Pcc, Bcc, leg_m, rptr, nz_cell, nz_w, var, M):
     return gains, Li, G
 
 
-@_jit
+@kernel
 def state_terms(P, B, header, idata, fdata, r, cells, K, leg_m, rptr, nz_cell, nz_w, var, M):
     """The one-step gains of every leg out of a tree state, and the terms its edges reuse.
 
@@ -235,11 +137,9 @@ def state_terms(P, B, header, idata, fdata, r, cells, K, leg_m, rptr, nz_cell, n
     ``P_cc = P0_cc - Uc Uc^T`` and ``B_cc = (P D P)_cc = B0_cc - Vc Uc^T - Uc Vc^T + Uc K Uc^T``. Each leg j
     (rows W_j over those cells: row a's weights ``nz_w`` on the cells ``nz_cell`` between ``rptr[j, a]`` and
     ``rptr[j, a + 1]``; noise ``var[j]``) has ``S = W P_cc W^T + R``, ``G = W B_cc W^T`` and gain
-    ``Tr(S^-1 G)``: the reduction of Tr(P) over the ROI D.
-
-    Returns:
-        gains (b,); L^-1 (L L^T = S) and G, each (b, M, M) (zero past each leg's ``leg_m`` rows); UV = [Uc^T |
-        Vc^T] (r, 2 q); P_cc and B_cc (q, q) (what :func:`child_terms` starts from).
+    ``Tr(S^-1 G)``: the reduction of Tr(P) over the ROI D. Returns gains (b,); L^-1 (L L^T = S) and G, each
+    (b, M, M) (zero past each leg's ``leg_m`` rows); UV = [Uc^T | Vc^T] (r, 2 q); P_cc and B_cc (q, q) (what
+    :func:`child_terms` starts from).
     """
     q = cells.size
     UV = _factor_rows(P, B, header, idata, fdata, r, cells)
@@ -264,10 +164,11 @@ def state_terms(P, B, header, idata, fdata, r, cells, K, leg_m, rptr, nz_cell, n
     return gains, Li, G, UV, Pcc, Bcc
 
 
-@_jit
+@kernel
 def child_terms(P, B, header, idata, fdata, r, cells, K, leg_m, rptr, nz_cell, nz_w, var, M, pcells, pUV, pPcc,
                 pBcc, eLi, eG, ej, em, erows, ecells, ew, eints):
-    """:func:`state_terms` of a state from its parent's terms, with the edge that leads to it.
+    """:func:`state_terms` of a state from its parent's terms, with the edge that leads to it; returns what
+    :func:`state_terms` returns, then the state's factor: header, idata, fdata, K.
 
     ``header``, ``idata``, ``fdata``, ``r`` and ``K`` are the parent's factor, ``pcells`` the parent node's
     cells (ascending), ``pUV`` = [Ut | Vt] (r_p, 2 q_p) the rows of U^T and V^T there and ``pPcc``, ``pBcc`` P
@@ -275,9 +176,6 @@ def child_terms(P, B, header, idata, fdata, r, cells, K, leg_m, rptr, nz_cell, n
     stays; ``eLi``, ``eG``: the parent's legs' L^-1 and G, as :func:`state_terms` gives them), with its
     weights (row ``erows``, index ``ecells`` among ``pcells``, value ``ew``; ``eints`` = rows, then map
     cells): :func:`edge_terms` adds it to the factor.
-
-    Returns:
-        what :func:`state_terms` returns, then the state's factor: header, idata, fdata, K.
     """
     pK = K
     X = np.zeros((r, 0))
@@ -291,12 +189,11 @@ def child_terms(P, B, header, idata, fdata, r, cells, K, leg_m, rptr, nz_cell, n
     return gains, Li, G, UV, Pcc, Bcc, header, idata, fdata, K
 
 
-@_jit
+@kernel
 def _from_parent(P, B, header, idata, fdata, r, cells, pK, X, corner, leg_m, rptr, nz_cell, nz_w, var, M, pcells,
                  pUV, pPcc, pBcc):
-    """:func:`state_terms` of a state (its factor: ``header`` to ``K``) from its parent's terms: ``pcells`` the
-    parent node's cells (ascending), ``pUV`` = [Ut | Vt] (r_p, 2 q_p) the rows of U^T and V^T there and ``pPcc``,
-    ``pBcc`` P and P D P there.
+    """:func:`state_terms` of a state (its factor: ``header`` to ``K``) from its parent's terms (``pcells`` to
+    ``pBcc``, as :func:`child_terms` takes them; ``X``, ``corner``: K's new column block and corner).
 
     The rows of U, V, P and P D P on the cells both nodes' legs see are the parent's; those on the other
     cells are rebuilt from the root (:func:`_factor_rows`; ``P_ik = P0_ik - U_i U_k`` and ``(P D P)_ik =
@@ -395,7 +292,7 @@ def _from_parent(P, B, header, idata, fdata, r, cells, pK, X, corner, leg_m, rpt
     return gains, Li, G, UV, Pcc, Bcc
 
 
-@_jit
+@kernel
 def edge_terms(Li, G, j, m, Wrows, wcell, wval, UV, K):
     """The small terms of one edge, for the parent's leg ``j`` of m rows with the parent's terms (``Li``, ``G``:
     its legs' L^-1 and G, as :func:`state_terms` gives them; ``UV`` = [Uc^T | Vc^T]): L^-1 (L L^T = S),
@@ -424,19 +321,18 @@ def edge_terms(Li, G, j, m, Wrows, wcell, wval, UV, K):
     return Linv, Y, Kn, X, corner
 
 
-# -- the node table: each roadmap node's legs (node_legs), laid out once, in two flat pools --------------
-#: the columns of a node's row of the table: built (1: laid out), b, M, q, then where each of its arrays
-#: starts in the int pool (row (k), index (b), cells (q), m (b), rptr (b (M + 1)), nz_ptr (b + 1), nz_row,
-#: nz_cell, and per leg its rows then its map cells (2 nnz)) and in the float pool (var (b M), nz_w)
+#: the columns of a node's row of the node table (:mod:`.node_table`): built (1: laid out), b, M, q, then where
+#: each of its arrays starts in the int pool (row (k), index (b), cells (q), m (b), rptr (b (M + 1)), nz_ptr
+#: (b + 1), nz_row, nz_cell, and per leg its rows then its map cells (2 nnz)) and in the float pool (var, nz_w)
 (T_BUILT, T_B, T_M, T_Q, T_ROW, T_INDEX, T_CELLS, T_LEGM, T_RPTR, T_NZ_PTR, T_NZ_ROW, T_NZ_CELL, T_NZ_INTS, T_VAR,
  T_NZ_W) = range(15)
 TABLE_WIDTH = 15
 
 
-@_jit
+@kernel
 def node_view(ipool, fpool, table, node, k):
-    """The legs of roadmap node ``node`` (k legs) from the table, as views of the pools: b, M, row, index,
-    cells, m, rptr (b, M + 1), var (b, M), nz_ptr, nz_row, nz_cell, nz_ints, nz_w (:func:`node_legs`)."""
+    """The legs of roadmap node ``node`` (k legs) from the table, as views of the pools: b, M, row, index, cells,
+    m, rptr (b, M + 1), var (b, M), nz_ptr, nz_row, nz_cell, nz_ints, nz_w (as ``node_table.node_legs``)."""
     t = table[node]
     b, M, q = t[T_B], t[T_M], t[T_Q]
     row = ipool[t[T_ROW]:t[T_ROW] + k]
@@ -454,16 +350,14 @@ def node_view(ipool, fpool, table, node, k):
     return b, M, row, index, cells, m, rptr, var, nz_ptr, nz_row, nz_cell, nz_ints, nz_w
 
 
-@_jit
+@kernel
 def step_terms(P, B, ipool, fpool, table, k, pnode, action, node, header, idata, fdata, r, K, UV, Pcc, Bcc, Li, G):
     """The terms of the state reached by leg ``action`` from a scored state at node ``pnode`` (its factor
     ``header`` to ``K`` and its terms ``UV`` to ``G``, as :func:`state_terms` gives them; empty where its node's
     legs see nothing), at node ``node``: from the parent's terms (:func:`child_terms`) where both nodes' legs
-    see something, else from the root (:func:`state_terms`; a leg that sees nothing keeps the factor).
-
-    Returns:
-        gains (k,) (0 for the legs that see nothing), then Li, G, UV, Pcc, Bcc, header, idata, fdata, r, K
-        (Li to Bcc empty where the node's legs see nothing).
+    see something, else from the root (:func:`state_terms`; a leg that sees nothing keeps the factor). Returns
+    gains (k,) (0 for the legs that see nothing), then Li, G, UV, Pcc, Bcc (empty where the node's legs see
+    nothing), header, idata, fdata, r, K.
     """
     pb, _, prow, _, pcells, plegm, _, _, pnz_ptr, pnz_row, pnz_cell, pnz_ints, pnz_w = node_view(ipool, fpool, table,
                                                                                               pnode, k)
@@ -504,7 +398,7 @@ def step_terms(P, B, ipool, fpool, table, k, pnode, action, node, header, idata,
     return out, Li2, G2, UV2, Pcc2, Bcc2, header, idata, fdata, r2, K
 
 
-@_jit
+@kernel
 def _append_edge(eLi, eG, ej, em, erows, ecells, ew, eints, UV, header, idata, fdata, r, K):
     """The factor with one edge appended (:func:`edge_terms`): header, idata, fdata, K."""
     Linv, Y, K, X, corner = edge_terms(eLi, eG, ej, em, erows, ecells, ew, UV, K)
@@ -523,7 +417,7 @@ def _append_edge(eLi, eG, ej, em, erows, ecells, ew, eints, UV, header, idata, f
     return head, idata, fnew, K, X, corner
 
 
-@_jit
+@kernel
 def _pairwise_block(a, lo, n):
     """NumPy's sum of a block of at most 128 terms ``a[lo:lo + n]`` (eight running sums, then the rest)."""
     if n < 8:
@@ -551,11 +445,10 @@ def _pairwise_block(a, lo, n):
     return res
 
 
-@_jit
+@kernel
 def _pairwise_sum(a, lo, n):
-    """NumPy's pairwise summation of ``a[lo:lo + n]`` (what ``a.sum()`` adds, in its order): blocks of at most
-    128 terms, halves (at a multiple of 8) added as NumPy's recursion adds them, with an explicit stack (numba
-    cannot load a recursive function from its cache)."""
+    """NumPy's pairwise summation of ``a[lo:lo + n]`` (``a.sum()``'s order): blocks of at most 128 terms, halves
+    (at a multiple of 8) added as NumPy's recursion adds them, on a stack (numba caches no recursive function)."""
     if n <= 128:
         return _pairwise_block(a, lo, n)
     # work items (start, length): length > 0 sums that span, length 0 adds the two values on top of the stack
@@ -583,7 +476,7 @@ def _pairwise_sum(a, lo, n):
     return values[0]
 
 
-@_jit
+@kernel
 def _order(gains, costs, remaining, tol):
     """The playable legs (``costs <= remaining + tol``), best ``gains / costs`` first, ties by index."""
     k = gains.size
@@ -611,7 +504,7 @@ def _order(gains, costs, remaining, tol):
     return order
 
 
-@_jit
+@kernel
 def _draw(rng, gains, costs, order, lam):
     """The rollout's move from a state (``order`` its playable legs): -1 where none gains anything, else the
     draw of ``rng.choice(order, p=softmax(lam * rate / max rate))``, rate = gains / costs: one ``rng.random()``
@@ -645,12 +538,12 @@ def _draw(rng, gains, costs, order, lam):
     return order[np.searchsorted(cdf, u, side="right")]
 
 
-@_jit
+@kernel
 def rollout(P, B, ipool, fpool, table, neighbours, costs, known, rng, horizon, tol, gamma, period, lam, unit, mode,
             node, remaining, elapsed, gains, action, total, discount, header, idata, fdata, r, K, UV, Pcc, Bcc,
             Li, G):
-    """A rollout of the MCTS (:mod:`ipp_bench.planners.mcts`) from a scored state, compiled: the moves drawn
-    with ``rng`` as the search draws them, the same rewards and discounts.
+    """A rollout of the MCTS from a scored state: the moves drawn with ``rng`` as the reference draws them
+    (:mod:`ipp_bench.planners.mcts_reference`), the same rewards and discounts.
 
     ``mode`` 0: the rollout starts at the tree's new state, at node ``neighbours[node, action]``, reached from the
     scored state (``node``, its ``gains`` and terms) with ``remaining`` and ``elapsed`` its own (the caller
@@ -658,12 +551,11 @@ def rollout(P, B, ipool, fpool, table, neighbours, costs, known, rng, horizon, t
     the move ``action`` drawn, ``total`` and ``discount`` so far. A state's flight times are row ``node`` of
     ``costs`` (``known``: which rows are set); its legs, the table's (laid out where the state is scored).
 
-    Returns:
-        status (0: the rollout ended, with return ``total``; 1: it needs node ``need``'s flight times or legs
-        (the caller sets them and goes on with mode 1 from the state returned)), need, total, discount; the
-        first state's gains (k,) (in units of ``unit``), order and terms (mode 0: the tree's new state; Li to
-        r as :func:`step_terms` gives them); the state to go on from (node, remaining, elapsed, gains, the move
-        drawn and its terms).
+    Returns status (0: the rollout ended, with return ``total``; 1: it needs node ``need``'s flight times or
+    legs: the caller sets them and goes on with mode 1 from the state returned), need, total, discount; the
+    first state's gains (k,) (in units of ``unit``), order and terms (mode 0: the tree's new state; Li to r as
+    :func:`step_terms` gives them); the state to go on from (node, remaining, elapsed, gains, the move drawn
+    and its terms).
     """
     k = neighbours.shape[1]
     f_gains, f_order = gains, np.zeros(0, dtype=np.int64)
@@ -706,322 +598,3 @@ def rollout(P, B, ipool, fpool, table, neighbours, costs, known, rng, horizon, t
         pending = True
     return (0, -1, total, discount, f_gains, f_order, f_terms, node, remaining, elapsed, gains, a,
             (Li, G, UV, Pcc, Bcc, header, idata, fdata, r, K))
-
-
-@_jit
-def readout_blocks(P, B, row_ptr, cells, weights, var):
-    """S = W P W^T + R and G = W B W^T of one batch of read-outs, W in sparse rows (row a's weights
-    ``weights`` on the map cells ``cells`` between ``row_ptr[a]`` and ``row_ptr[a + 1]``; ``var`` (m,) the
-    rows' noise variances; ``P`` and ``B`` = P D P, both (n, n); a row averages at most a binning block):
-    the batch's predicted reduction of Tr(P) over the ROI D is ``Tr(S^-1 G)``."""
-    m = var.size
-    n = P.shape[0]
-    seen = np.zeros(n, dtype=np.bool_)
-    for p in range(cells.size):
-        seen[cells[p]] = True
-    union = np.flatnonzero(seen)  # the batch's cells, ascending (rows of P and B read in address order)
-    q = union.size
-    local = np.full(n, -1, dtype=np.int64)  # map cell -> its index among the batch's cells
-    for y in range(q):
-        local[union[y]] = y
-    loc = np.empty(cells.size, dtype=np.int64)
-    for p in range(cells.size):
-        loc[p] = local[cells[p]]
-    Pu = np.empty((q, q))  # P and B on the batch's cells
-    Bu = np.empty((q, q))
-    for x in range(q):
-        rowP = P[union[x]]
-        rowB = B[union[x]]
-        for y in range(q):
-            Pu[x, y] = rowP[union[y]]
-            Bu[x, y] = rowB[union[y]]
-    XP = np.zeros((m, q))  # W P[:, union]
-    XB = np.zeros((m, q))  # W B[:, union]
-    for a in range(m):
-        for p in range(row_ptr[a], row_ptr[a + 1]):
-            w = weights[p]
-            x = loc[p]
-            for y in range(q):
-                XP[a, y] += w * Pu[x, y]
-                XB[a, y] += w * Bu[x, y]
-    S = np.empty((m, m))
-    G = np.empty((m, m))
-    for a in range(m):
-        for c in range(a + 1):
-            s = 0.0
-            g = 0.0
-            for t in range(row_ptr[c], row_ptr[c + 1]):
-                y = loc[t]
-                s += weights[t] * XP[a, y]
-                g += weights[t] * XB[a, y]
-            S[a, c] = s
-            S[c, a] = s
-            G[a, c] = g
-            G[c, a] = g
-        S[a, a] += var[a]
-    return S, G
-
-
-_EPS = 1e-9  # [m] as ipp_bench.core.sensor: centres exactly on the footprint's edge are inside
-
-
-@_jit
-def camera_rows(points, noise_a, noise_b, binned_scale, tan, res, n_rows, n_cols, binning_altitude, binning,
-                s_cell, s_binned, r_corr):
-    """The camera's read-outs from each of ``points`` ((K, 3) [m]) in turn, as sparse rows: what
-    :meth:`~ipp_bench.core.sensor.Sensor.observe` gives at each point (none where the footprint misses the map),
-    row by row, compiled: the same footprint (``tan`` = tan(fov / 2); a ``n_rows`` x ``n_cols`` grid of
-    ``res`` [m] cells), binning and weights, and the same noise variance, ``noise_a (1 - exp(-noise_b h))``
-    (times ``binned_scale`` = f^e when binned) plus the persistent share ``s w^T C w`` (``s_cell``,
-    ``s_binned``; C = ``r_corr``^(d^2) over a binned row's cells, summed in another order than the
-    camera's: equal to rounding).
-
-    Returns:
-        (row_ptr (m + 1,), cells (nnz,), weights (nnz,), var (m,)): row a's nonzero weights ``weights`` on
-        the map cells ``cells`` between ``row_ptr[a]`` and ``row_ptr[a + 1]``, and its noise variance.
-    """
-    K = points.shape[0]
-    ranges = np.empty((K, 4), dtype=np.int64)
-    m = 0
-    nnz = 0
-    for i in range(K):
-        x, y, h = points[i, 0], points[i, 1], points[i, 2]
-        half = h * tan
-        c0 = max(0, int(np.ceil((x - half - _EPS) / res - 0.5)))
-        c1 = min(n_cols - 1, int(np.floor((x + half + _EPS) / res - 0.5)))
-        r0 = max(0, int(np.ceil((y - half - _EPS) / res - 0.5)))
-        r1 = min(n_rows - 1, int(np.floor((y + half + _EPS) / res - 0.5)))
-        ranges[i, 0], ranges[i, 1], ranges[i, 2], ranges[i, 3] = r0, r1, c0, c1
-        if r1 < r0 or c1 < c0:
-            continue
-        cells = (r1 - r0 + 1) * (c1 - c0 + 1)
-        nnz += cells
-        if h > binning_altitude and binning > 1:
-            m += ((r1 - r0) // binning + 1) * ((c1 - c0) // binning + 1)
-        else:
-            m += cells
-    row_ptr = np.zeros(m + 1, dtype=np.int64)
-    out_cells = np.empty(nnz, dtype=np.int64)
-    weights = np.empty(nnz)
-    var = np.empty(m)
-    a = 0
-    p = 0
-    for i in range(K):
-        r0, r1, c0, c1 = ranges[i, 0], ranges[i, 1], ranges[i, 2], ranges[i, 3]
-        if r1 < r0 or c1 < c0:
-            continue
-        h = points[i, 2]
-        white = noise_a * (1.0 - math.exp(-noise_b * h))
-        if h > binning_altitude and binning > 1:
-            white *= binned_scale
-            for br in range(r0, r1 + 1, binning):
-                for bc in range(c0, c1 + 1, binning):
-                    re, ce = min(br + binning, r1 + 1), min(bc + binning, c1 + 1)
-                    count = (re - br) * (ce - bc)
-                    w = 1.0 / count
-                    share = 0.0
-                    for rr in range(br, re):
-                        for cc in range(bc, ce):
-                            out_cells[p] = rr * n_cols + cc
-                            weights[p] = w
-                            p += 1
-                            if r_corr > 0:
-                                for rr2 in range(br, re):
-                                    for cc2 in range(bc, ce):
-                                        share += w * w * r_corr ** ((rr - rr2) ** 2 + (cc - cc2) ** 2)
-                            else:
-                                share += w * w
-                    var[a] = white + s_binned * share if s_binned > 0 else white
-                    a += 1
-                    row_ptr[a] = p
-        else:
-            for rr in range(r0, r1 + 1):
-                for cc in range(c0, c1 + 1):
-                    out_cells[p] = rr * n_cols + cc
-                    weights[p] = 1.0
-                    p += 1
-                    var[a] = white + s_cell * 1.0 if s_cell > 0 else white
-                    a += 1
-                    row_ptr[a] = p
-    return row_ptr, out_cells, weights, var
-
-
-def leg_points(start, end, spacing: float) -> np.ndarray:
-    """(K, 3) [m] where the mission reads the camera flying ``start -> end``: the positions of
-    :meth:`~ipp_bench.planners.base.RobotView.leg_observations` (same spacing rule, same arithmetic)."""
-    start = np.asarray(start, dtype=np.float64)
-    delta = np.asarray(end, dtype=np.float64) - start
-    dist = leg_length(start, end)
-    if dist <= MIN_LEG_M:
-        return np.zeros((0, 3))
-    s = leg_samples(dist, 0.0, spacing)
-    return start + np.outer(s / dist, delta)
-
-
-def camera_args(sensor) -> tuple:
-    """The constants of ``sensor`` (a :class:`~ipp_bench.core.sensor.Sensor`) that :func:`camera_rows` takes
-    after the points, computed as the camera computes them."""
-    cfg, grid = sensor.cfg, sensor.grid
-    binned_scale = float(cfg.binning) ** cfg.binning_noise_exponent if cfg.binning_noise_exponent else 1.0
-    tan = math.tan(math.radians(cfg.fov_deg) / 2.0)
-    return (float(cfg.noise_a), float(cfg.noise_b), binned_scale, tan, float(grid.resolution), int(grid.rows),
-            int(grid.cols), float(cfg.binning_altitude), int(cfg.binning), float(cfg.persistent(1)),
-            float(cfg.persistent(cfg.binning)), float(cfg.persistent_neighbour_corr))
-
-
-def roi_product(cov: np.ndarray, roi: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """B = P D P (D: the diagonal mask ``roi``) as one (n, n) product, into ``out`` where it fits."""
-    n = cov.shape[0]
-    if out is None or out.shape != (n, n):
-        out = np.empty((n, n))
-    P_roi = cov if roi.all() else cov[:, roi]
-    return np.matmul(P_roi, P_roi.T, out=out)
-
-
-@_jit
-def fold_repeated_rows(row_ptr, cells, weights, var):
-    """The read-out rows of ``camera_rows`` with repeated rows folded into one: a row with the same cells and
-    weights as an earlier one (a look at the same footprint again) joins it, with the noise variance of
-    both looks together, ``1 / (1 / r1 + 1 / r2)``. The same posterior covariance in exact arithmetic (two
-    independent measurements of w^T x are one with their precisions added), with fewer rows.
-
-    Returns (row_ptr, cells, weights, var) of the distinct rows, in the order of their first look.
-    """
-    m = var.size
-    first = np.arange(m)
-    for a in range(m):
-        na = row_ptr[a + 1] - row_ptr[a]
-        for c in range(a):
-            if first[c] != c or row_ptr[c + 1] - row_ptr[c] != na:
-                continue
-            same = True
-            for t in range(na):
-                if cells[row_ptr[a] + t] != cells[row_ptr[c] + t] or weights[row_ptr[a] + t] != weights[row_ptr[c] + t]:
-                    same = False
-                    break
-            if same:
-                first[a] = c
-                break
-    precision = np.zeros(m)
-    for a in range(m):
-        precision[first[a]] += 1.0 / var[a]
-    keep = 0
-    nnz = 0
-    for a in range(m):
-        if first[a] == a:
-            keep += 1
-            nnz += row_ptr[a + 1] - row_ptr[a]
-    out_ptr = np.zeros(keep + 1, dtype=np.int64)
-    out_cells = np.empty(nnz, dtype=np.int64)
-    out_w = np.empty(nnz)
-    out_var = np.empty(keep)
-    k = 0
-    p = 0
-    for a in range(m):
-        if first[a] != a:
-            continue
-        for t in range(row_ptr[a], row_ptr[a + 1]):
-            out_cells[p] = cells[t]
-            out_w[p] = weights[t]
-            p += 1
-        out_var[k] = var[a] if precision[a] == 1.0 / var[a] else 1.0 / precision[a]
-        k += 1
-        out_ptr[k] = p
-    return out_ptr, out_cells, out_w, out_var
-
-
-class NodeTable:
-    """Every roadmap node's legs laid out for the compiled search, a node when the search first reaches it, in
-    two flat pools (the layout of :func:`node_legs`; the table's columns: ``T_*``), which the compiled search
-    reads (:func:`node_view`)."""
-
-    def __init__(self, nodes: int, k: int):
-        self.k = k
-        self.table = np.zeros((nodes, TABLE_WIDTH), dtype=np.int64)
-        self.ipool = np.zeros(1 << 16, dtype=np.int64)
-        self.fpool = np.zeros(1 << 16)
-        self._ni = self._nf = 0
-
-    def built(self, node: int) -> bool:
-        return bool(self.table[node, T_BUILT])
-
-    def add(self, node: int, legs: list) -> None:
-        """Lay out node ``node``'s legs (``legs[a]``: the sparse rows of leg a, None where it sees nothing)."""
-        rows = [(0, 0) if leg is None else (leg[0].size - 1, leg[1].size) for leg in legs]
-        leg_rows = np.concatenate([[0], np.cumsum([r for r, _ in rows])]).astype(np.int64)
-        present = [leg for leg in legs if leg is not None]
-        if present:
-            offsets = np.cumsum([0] + [nnz for _, nnz in rows if nnz])[:-1]
-            row_ptr = np.concatenate([[0]] + [leg[0][1:] + o for leg, o in zip(present, offsets)]).astype(np.int64)
-            cells, weights, var = (np.concatenate([leg[i] for leg in present]) for i in (1, 2, 3))
-        else:
-            row_ptr, cells, weights, var = np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), \
-                np.zeros(0)
-        index, union, m, var_pad, nz_ptr, nz_row, nz_cell, nz_w, rptr = node_legs(leg_rows, row_ptr,
-                                                                                   cells.astype(np.int64), weights, var)
-        row = np.full(self.k, -1, dtype=np.int64)
-        row[index] = np.arange(index.size)
-        nz_ints = np.concatenate([np.zeros(0, dtype=np.int64)] + [
-            np.concatenate([nz_row[nz_ptr[j]:nz_ptr[j + 1]], union[nz_cell[nz_ptr[j]:nz_ptr[j + 1]]]])
-            for j in range(index.size)])
-        ints = (row, index, union, m, rptr.ravel(), nz_ptr, nz_row, nz_cell, nz_ints)
-        floats = (var_pad.ravel(), nz_w)
-        i0 = self._ni
-        f0 = self._nf
-        self.ipool = self._grown(self.ipool, i0, sum(a.size for a in ints))
-        self.fpool = self._grown(self.fpool, f0, sum(a.size for a in floats))
-        entry = self.table[node]
-        entry[T_B], entry[T_M], entry[T_Q] = index.size, var_pad.shape[1], union.size
-        for col, a in zip((T_ROW, T_INDEX, T_CELLS, T_LEGM, T_RPTR, T_NZ_PTR, T_NZ_ROW, T_NZ_CELL, T_NZ_INTS), ints):
-            self.ipool[i0:i0 + a.size] = a
-            entry[col] = i0
-            i0 += a.size
-        for col, a in zip((T_VAR, T_NZ_W), floats):
-            self.fpool[f0:f0 + a.size] = a
-            entry[col] = f0
-            f0 += a.size
-        self._ni, self._nf = i0, f0
-        entry[T_BUILT] = 1
-
-    def compact(self) -> None:
-        """Drop the pools' room past what they hold."""
-        self.ipool = self.ipool[:self._ni].copy()
-        self.fpool = self.fpool[:self._nf].copy()
-
-    @staticmethod
-    def _grown(pool: np.ndarray, used: int, more: int) -> np.ndarray:
-        """``pool`` with room for ``more`` entries after its first ``used`` (its size doubled where it lacks it)."""
-        if used + more <= pool.size:
-            return pool
-        bigger = np.zeros(max(2 * pool.size, used + more), dtype=pool.dtype)
-        bigger[:used] = pool[:used]
-        return bigger
-
-
-def warm_up() -> None:
-    """Compile every kernel now (10-30 s, once per process; nothing after it compiles), not in a decision."""
-    require_numba("the fast searches")
-    P = np.ones((2, 2)) + np.eye(2)
-    readout_blocks(P, P, np.array([0, 1, 2], dtype=np.int64), np.array([0, 1], dtype=np.int64), np.ones(2), np.ones(2))
-    fold_repeated_rows(np.array([0, 1, 2], dtype=np.int64), np.array([0, 0], dtype=np.int64), np.ones(2), np.ones(2))
-    camera_rows(np.array([[1.0, 1.0, 2.0], [1.0, 1.0, 9.0]]), 0.05, 0.2, 8.0, 0.5, 1.0, 4, 4, 5.0, 2, 0.1, 0.1, 0.5)
-    # the MCTS search: a two-node roadmap, each node's one leg seeing two cells (state_terms as the root's, step_terms
-    # and rollout as the search's)
-    P = np.ones((4, 4)) + np.eye(4)
-    table = NodeTable(2, 1)
-    leg = (np.array([0, 1, 2], dtype=np.int64), np.array([0, 1], dtype=np.int64), np.ones(2), np.ones(2))
-    for node in (0, 1):
-        table.add(node, [leg])
-    neighbours = np.array([[1], [0]], dtype=np.int64)
-    costs = np.ones((2, 1))
-    known = np.ones(2, dtype=np.bool_)
-    b, M, _, _, cells, m, rptr, var, _, _, nz_cell, _, nz_w = node_view(table.ipool, table.fpool, table.table, 0, 1)
-    header, idata = np.zeros((0, 5), dtype=np.int64), np.zeros(0, dtype=np.int64)
-    fdata, K = np.zeros(0), np.zeros((0, 0))
-    g, Li, G, UV, Pcc, Bcc = state_terms(P, P, header, idata, fdata, 0, cells, K, m, rptr, nz_cell, nz_w, var, M)
-    terms = (header, idata, fdata, 0, K, UV, Pcc, Bcc, Li, G)
-    step_terms(P, P, table.ipool, table.fpool, table.table, 1, 0, 0, 1, *terms)
-    rng = np.random.default_rng(0)
-    for mode in (0, 1):
-        rollout(P, P, table.ipool, table.fpool, table.table, neighbours, costs, known, rng, 3.5, 1e-9, 0.9, 1.0, 8.0,
-                1.0, mode, 0, 10.0, 1.0, g, 0, 0.0, 1.0, *terms)

@@ -1,43 +1,14 @@
 """The MCTS's low-rank gains model (``mcts:search=lowrank``, the default): the reference's gains from a low-rank
 factor of the tree's covariance updates, compiled.
 
-A tree state's covariance is the root's less the updates along its path, ``P = P0 - U U^T`` with ``U = [A_1 ...
-A_d]`` (n x r, r the read-out rows flown since the root; ``A_j A_j^T`` one leg's Kalman update,
-:func:`~ipp_bench.core.belief.gain_factor`). A state keeps only its edges' small terms (each leg's L^-1, with
-``L L^T = S``, and ``Y = W U`` at the state it leaves) and ``K = U^T D U`` (r x r; D: the ROI's diagonal mask),
-never P nor U: the search only ever reads U and ``V = P0 D U`` on the q cells that the legs of the node being
-expanded see, and it rebuilds those rows edge by edge from the root, ``A_j = C_j L_j^-T`` with ``C_j = P0 H_j^T
-- U Y_j^T`` and ``P0 D C_j = B0 H_j^T - V Y_j^T`` (``B0 = P0 D P0``, one product per decision), in O(q r^2)
-without touching the rest of the map. On those cells ``P_cc = P0_cc - Uc Uc^T`` and ``(P D P)_cc = B0_cc - Vc
-Uc^T - Uc Vc^T + Uc K Uc^T``, and a leg (rows W, noise R) reduces Tr(P) over the ROI by ``Tr(S^-1 G)`` with ``S
-= W P_cc W^T + R`` and ``G = W (P D P)_cc W^T``: the reference's ``sum_r (HP)_r^T S^-1 (HP)_r``
-(:func:`~ipp_bench.core.belief.trace_reductions`) regrouped. The root's terms cost O(q r^2 + q^2 r); a state
-below it starts from its parent's (it keeps its rows of U and V and its P_cc and (P D P)_cc): on the cells both
-nodes' legs see (about nine in ten) they are the parent's, the other cells' rows are rebuilt from the root, and
-the edge's block A (m columns) updates them all, ``P_cc -= A_c A_c^T`` and ``(P D P)_cc += A_c T_c^T + T_c
-A_c^T`` with ``T = A K_aa / 2 + U K_ua - P0 D A`` (K_aa, K_ua: K's new corner and column block), in O(q^2 m + q r
-m) (:func:`~ipp_bench.planners.kernels.lowrank.child_terms`; a state keeps each of its legs' L^-1 and G, and its
-rows ``UV = [Uc^T | Vc^T]``). Then b Cholesky factorisations of at most M x M, instead of the reference's
-O(b M q n) batched gain and its O(n^2 m) copy and downdate of the covariance per edge; an edge adds K's new row
-and corner, ``U^T D A = (Z^T - K Y^T) L^-T`` (``Z = W V``) and ``A^T D A = L^-1 G L^-T``. A child's terms are
-built only when its own gains are asked for (a rollout's last move, which crosses the horizon, never needs them).
-
-Each rollout runs compiled, from the tree's new state to its end
-(:func:`~ipp_bench.planners.kernels.lowrank.rollout`): the reference's moves, drawn with the planner's generator
-(one ``random()`` per move against the same cumulative softmax, NumPy's sums in their order; ``exp`` is the C
-library's, which can differ from NumPy's in the last bit, so a draw within ~1e-16 of a boundary between two
-moves could go the other way), the same rewards and discounts. It stops to let Python set a node's flight times
-the first time the search reaches it in an episode (the mission's clock, as the reference reads it). The legs'
-layout (:class:`~ipp_bench.planners.kernels.node_table.NodeTable`, every node's, in one table) is static for a
-roadmap, camera and measurement spacing: it is built for every node when a planner is first reset on a roadmap
-and kept for the process.
-
-The quantities are the reference's in exact arithmetic and agree to round-off (~1e-15 of the largest gain);
-where two legs' gains per second lie within rounding of each other at the root, the root's gains are the
-reference's own (:func:`~ipp_bench.core.belief.trace_reductions`), the same bits, so the same order. A leg's
-read-outs come from the camera's compiled rows, a footprint looked at twice on one leg folded into one row with
-both looks' precision (the same posterior). The model needs numba (the ``eval`` extra); its kernels are compiled
-when the planner is first reset, and numba caches them on disk (:mod:`~ipp_bench.planners.kernels`).
+A tree state's covariance is the root's less the updates along its path, ``P = P0 - U U^T``; a state keeps only
+its edges' small terms, and the search rebuilds, edge by edge from the root, the rows of U it needs on the cells
+the legs of the node being expanded see. Each rollout runs compiled
+(:func:`~ipp_bench.planners.kernels.lowrank.rollout`) with the planner's generator, the reference's moves. The
+quantities are the reference's in exact arithmetic and agree to round-off; where two legs' gains per second lie
+within rounding of each other at the root, the root's gains are the reference's own, so the same order. The
+derivation, term by term: ``docs/mcts-lowrank.md``. Needs numba (the ``eval`` extra); the kernels are compiled
+when the planner is first reset and cached on disk (:mod:`~ipp_bench.planners.kernels`).
 """
 
 from __future__ import annotations

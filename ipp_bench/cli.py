@@ -128,6 +128,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "task configurations and episode seeds, and write to --out a report with its rows copied "
                          "in (marked published); FOLDER is only read. A task configuration or seed set that "
                          "differs is refused, naming what differs")
+    lb.add_argument("--trust-unverified", action="store_true",
+                    help="with --against: use a published board whose run.json records no row digests (made before "
+                         "they were recorded); its rows are still checked otherwise, and the report says they are "
+                         "unverified")
     lb.add_argument("--power", type=float, default=None, metavar="POINTS",
                     help="half-width target of the report's power rule: the episodes each task needs for a paired "
                          "95%% interval of every planner minus the reference within +-POINTS (default 3)")
@@ -141,12 +145,17 @@ def build_parser() -> argparse.ArgumentParser:
                         description="The power rule on a finished leaderboard folder: per task and report time, the "
                                     "sd of every planner's paired difference with the reference, the episodes, the "
                                     "half-width reached, and the episodes needed for a paired 95 % interval of "
-                                    "half-width at most --half-width points: n = ceil((1.96 sd / h)^2). Reads only.")
-    pw.add_argument("folder", metavar="DIR", help="a leaderboard folder (its results.csv)")
+                                    "half-width at most --half-width points: n = ceil((1.96 sd / h)^2). Reads only; "
+                                    "the folder is verified first (every row against its run.json, as --against "
+                                    "does).")
+    pw.add_argument("folder", metavar="DIR", help="a finished leaderboard folder (its run.json and results.csv)")
     pw.add_argument("--half-width", type=float, default=None, metavar="POINTS",
                     help="the target half-width in points (default 3)")
     pw.add_argument("--reference", default=None, metavar="SPEC",
                     help="the planner every other one is paired with (default greedy)")
+    pw.add_argument("--trust-unverified", action="store_true",
+                    help="use a folder whose run.json records no row digests (made before they were recorded); "
+                         "its rows are still checked otherwise")
 
     for name, (_, _, _, extra, text) in _DELEGATED.items():
         sub.add_parser(name, help=f"{text} (needs ipp-bench[{extra}]; see 'ipp-bench {name} --help')",
@@ -372,16 +381,14 @@ def _half_width(value: float | None, flag: str) -> float:
 def cmd_power(args: argparse.Namespace) -> int:
     from .envs import short_task_id
     from .eval.power import needed_per_task, power_rule
-    from .eval.results_csv import RESULTS_CSV, read_results
     from .eval.tables import DEFAULT_REFERENCE, resolve_reference
+    from .eval.verify import read_board
 
     try:
         h = _half_width(args.half_width, "--half-width")
-        csv_path = os.path.join(args.folder, RESULTS_CSV)
-        if not os.path.isfile(csv_path):
-            raise ValueError(f"{args.folder}: no {RESULTS_CSV} there (expected a leaderboard folder)")
-        rows = read_results(csv_path)
-        planners = list(dict.fromkeys(r["planner"] for r in rows))
+        board = read_board(args.folder, args.trust_unverified)  # every row checked before a figure is computed
+        rows = board.rows
+        planners = board.planners
         reference = resolve_reference((args.reference or DEFAULT_REFERENCE).strip(), planners)
         if reference is None:
             raise ValueError(f"--reference {args.reference or DEFAULT_REFERENCE!r} names no planner of {args.folder}: "
@@ -391,6 +398,7 @@ def cmd_power(args: argparse.Namespace) -> int:
     cells = power_rule(rows, reference, h)
     if not cells:
         return _error(f"{args.folder}: no planner shares an episode with {reference}")
+    print(board.describe())
     print(f"{args.folder}: every planner minus {reference}, paired 95% interval of half-width <= {h:g} points; "
           f"n = ceil((1.96 sd / {h:g})^2), sd of the paired difference over the folder's episodes")
     print(f"{'task':<20} {'time [s]':>8} {'episodes':>8} {'largest sd':>10} {'half-width':>10} {'needed':>7}  set by")
@@ -434,12 +442,16 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
             if specs is None:
                 raise ValueError("--against needs --planners: the planners to pair with the published board")
             plan = against_plan(args.against, specs, args.tasks, args.episodes, args.seed, args.quick,
-                                parse_overrides(args.env), log=lambda m: print(m, flush=True))
+                                parse_overrides(args.env), log=lambda m: print(m, flush=True),
+                                trust_unverified=args.trust_unverified)
             if os.path.realpath(args.out) == os.path.realpath(args.against):
                 raise ValueError(f"--out {args.out} is the published board itself: --against never writes there; "
                                  "pass another --out DIR")
             reported = [*plan.against["planners"], *plan.planners]
         else:
+            if args.trust_unverified:
+                raise ValueError("--trust-unverified goes with --against FOLDER (a published board without row "
+                                 "digests); a folder of one's own is checked against its run.json as it resumes")
             plan = make_plan(args.tasks, specs, args.episodes, 0 if args.seed is None else args.seed, args.quick,
                              parse_overrides(args.env), log=lambda m: print(m, flush=True))
             reported = list(plan.planners)

@@ -2,7 +2,8 @@
 
 - one episode: ``runner`` (by task id and planner spec), ``figure`` (its PNG), ``demo`` (the MuJoCo video);
 - a leaderboard run: ``plan`` (arguments, seeds), ``fingerprint`` (what decides the numbers),
-  ``against`` (pairing with a published board), ``leaderboard`` (runs the episodes);
+  ``against`` (pairing with a published board), ``verify`` (a published board checked before it is
+  used), ``leaderboard`` (runs the episodes);
 - its folder: ``results`` (lock, resume, append), ``run_json``, ``results_csv``, ``machine``;
 - where episodes run: ``executors`` (serial, process pool), ``ray_executor``, ``ray_watchdog``
   (run as ``python -m``), ``jobs`` (what every backend shares);

@@ -1,14 +1,13 @@
 """Pairing new planners with a published leaderboard folder (``ipp-bench leaderboard --against FOLDER``).
 
-:func:`read_published` reads a finished folder; :func:`against_plan` plans new planners on its tasks,
-task configurations, environment overrides and episode seeds, refusing any difference by name.
+:func:`read_published` reads a finished folder and verifies it (:mod:`ipp_bench.eval.verify`);
+:func:`against_plan` plans new planners on its tasks, task configurations, environment overrides and
+episode seeds, refusing any difference by name.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,13 +16,14 @@ from typing import Any
 from ..envs.registry import resolve_task
 from .fingerprint import config_differences, normalised_overrides, short_json, task_config_record
 from .plan import SEED_SCHEME, Plan, episode_seeds, make_plan
-from .results_csv import RESULTS_CSV, read_results
 from .run_json import RUN_JSON
+from .verify import TRUST_FLAG, BoardRefused, read_board
 
 
 @dataclass(frozen=True)
 class PublishedBoard:
-    """A finished leaderboard folder, read from its ``run.json`` and ``results.csv``."""
+    """A finished leaderboard folder, read from its ``run.json`` and ``results.csv`` and verified
+    (:func:`~ipp_bench.eval.verify.read_board`)."""
 
     folder: str
     tasks: tuple[str, ...]
@@ -36,52 +36,53 @@ class PublishedBoard:
     seed_scheme: str | None
     quick: bool
     results_sha256: str
+    verified: bool = True  # False: its run.json records no row digests, used with --trust-unverified
 
     def identity(self) -> dict[str, Any]:
-        """What a board paired with it records (:attr:`Plan.against`)."""
-        return {"folder": self.folder, "planners": sorted(self.planners), "episodes": self.episodes,
-                "results_sha256": self.results_sha256}
+        """What a board paired with it records (:attr:`Plan.against`); ``unverified`` only where it is."""
+        out = {"folder": self.folder, "planners": sorted(self.planners), "episodes": self.episodes,
+               "results_sha256": self.results_sha256}
+        if not self.verified:
+            out["unverified"] = True
+        return out
 
 
-def read_published(folder: str | Path) -> PublishedBoard:
-    """The published board in ``folder`` (``run.json`` and a complete ``results.csv``).
+def read_published(folder: str | Path, trust_unverified: bool = False) -> PublishedBoard:
+    """The published board in ``folder``, verified: its ``run.json`` and every row of its complete
+    ``results.csv`` (:func:`~ipp_bench.eval.verify.read_board`).
+
+    Args:
+        trust_unverified: use a board whose run.json records no row digests (``--trust-unverified``).
 
     Raises:
-        ValueError: no such folder, no or an unreadable run.json, no results.csv, or a results.csv
-            that lacks episodes of its run.json (naming how many).
+        ValueError: ``--against FOLDER: ...`` and one line naming the row or the run.json field that
+            fails verification (an edited, foreign, repeated or missing row; another format; no digests
+            without ``trust_unverified``), or no such folder.
     """
-    root = Path(folder)
-    run_json, csv_path = root / RUN_JSON, root / RESULTS_CSV
-    if not run_json.is_file() or not csv_path.is_file():
-        raise ValueError(f"--against {folder}: not a leaderboard folder (it needs {RUN_JSON} and {RESULTS_CSV})")
     try:
-        meta = json.loads(run_json.read_text())
-        fp = meta["fingerprint"]
-        tasks, planners = tuple(meta["tasks"]), tuple(meta["planners"])
-        seeds = tuple(int(s) for s in meta["seeds"])
-        board = PublishedBoard(str(folder), tasks, planners, int(meta.get("episodes") or len(seeds)), int(fp["seed"]),
-                               seeds, dict(fp.get("env_overrides") or {}), dict(fp["task_configs"]),
-                               fp.get("seed_scheme"), bool(meta.get("quick", False)),
-                               hashlib.sha256(csv_path.read_bytes()).hexdigest())
+        board = read_board(folder, trust_unverified)
+    except BoardRefused as err:
+        raise ValueError(f"--against {folder}: {err}") from None
+    meta, fp = board.meta, board.meta["fingerprint"]
+    try:
+        return PublishedBoard(str(folder), tuple(meta["tasks"]), tuple(meta["planners"]), len(meta["seeds"]),
+                              int(fp["seed"]), tuple(meta["seeds"]), dict(fp.get("env_overrides") or {}),
+                              dict(fp["task_configs"]), fp.get("seed_scheme"), bool(meta.get("quick", False)),
+                              board.results_sha256, board.verified)
     except (ValueError, KeyError, TypeError) as err:
         raise ValueError(f"--against {folder}: {RUN_JSON} is unreadable ({type(err).__name__}: {err})") from None
-    held = {(r["task"], r["planner"], r["seed"]) for r in read_results(csv_path)}
-    wanted = {(t, p, s) for t in tasks for p in planners for s in seeds}
-    if not wanted <= held:
-        raise ValueError(f"--against {folder}: its {RESULTS_CSV} holds {len(wanted & held)} of the {len(wanted)} "
-                         "episodes its run.json names; complete it first (rerun its command)")
-    return board
 
 
 def against_plan(folder: str | Path, planners: Sequence[str], tasks: Sequence[str] | None = None,
                  episodes: int | None = None, seed: int | None = None, quick: bool = False,
                  env_overrides: dict[str, Any] | None = None, log: Callable[[str], None] = print,
-                 check_start: bool = True) -> Plan:
+                 check_start: bool = True, trust_unverified: bool = False) -> Plan:
     """The plan that flies ``planners`` on the published board in ``folder``: its tasks, task
     configurations, environment overrides and episode seeds, so every new row pairs with every
     published one.
 
-    ``tasks``, ``episodes``, ``seed`` and ``env_overrides`` may be given only as the board has them.
+    ``tasks``, ``episodes``, ``seed`` and ``env_overrides`` may be given only as the board has them;
+    ``trust_unverified`` uses a board whose run.json records no row digests (the report says so).
 
     Raises:
         ValueError: naming what differs: an argument given otherwise than the board has it, a task
@@ -89,8 +90,10 @@ def against_plan(folder: str | Path, planners: Sequence[str], tasks: Sequence[st
             seed scheme derives otherwise, a planner that is on the board already; or the board's
             own problems (:func:`read_published`).
     """
-    board = read_published(folder)
+    board = read_published(folder, trust_unverified)
     name = f"--against {folder}"
+    if not board.verified:
+        log(f"note: {name}: its {RUN_JSON} records no row digests; its rows are used unverified ({TRUST_FLAG})")
     given = []
     if tasks is not None:
         mine = [resolve_task(t) for t in tasks]

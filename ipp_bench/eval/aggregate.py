@@ -44,6 +44,10 @@ a fixed seed: the same results.csv always gives the same numbers.
 improvement whose interval lies above 0.5; planners with the same rank are tied (the data cannot
 separate them). References that read the truth (the ``oracle``) are never ranked.
 
+**One episode.** A task of fewer than :data:`MIN_EPISODES` episodes has no interval: resampling one
+episode gives it back every time, a zero-width interval that would read as certainty. A board with
+such a task gets point estimates alone, no interval, and every planner the same rank.
+
 The rule for how many episodes a board needs is :mod:`ipp_bench.eval.power`.
 """
 
@@ -75,6 +79,8 @@ TEAM_UPPER_ANCHOR = "team-oracle"
 LOWER_DEFAULT, UPPER_DEFAULT = 0.0, 100.0
 #: [points] a task and time whose random-to-oracle span is smaller is left out of the aggregate
 MIN_SPAN = 1.0
+#: episodes every task needs for the aggregate's intervals (and so for a rank or a bold probability)
+MIN_EPISODES = 2
 #: thresholds of the performance profile the report writes out (the plot draws every one)
 PROFILE_MARKS = (0.0, 0.5, 0.75, 0.9, 1.0)
 _BATCH = 250  # resamples per vectorised batch
@@ -264,7 +270,7 @@ def normalised_board(rows: Iterable[dict[str, Any]], planners: Sequence[str] | N
 # --------------------------------------------------------------------------------------------------
 # interval estimates: the stratified bootstrap over episodes, joint for every planner
 # --------------------------------------------------------------------------------------------------
-Estimate = tuple[float, float, float]  # (point, low, high)
+Estimate = tuple[float, float | None, float | None]  # (point, low, high); no interval: (point, None, None)
 
 
 @dataclass
@@ -275,9 +281,12 @@ class AggregateEstimates:
         iqm: per planner, over every task and report time.
         iqm_by_time: per report time, per planner, over the tasks reporting at that time.
         poi: per (x, y) planner pair (x != y), ``P(X > Y)``.
-        taus, profile: the performance profile of each planner (point, low, high arrays over ``taus``).
+        taus, profile: the performance profile of each planner (point, low, high arrays over ``taus``;
+            low and high None without intervals).
         ranks: per planner that is not a reference, 1 + the planners that beat it with a
             probability-of-improvement interval above 0.5.
+        intervals: False where a task has fewer than :data:`MIN_EPISODES` episodes: every low and
+            high is None, and every planner has rank 1.
     """
 
     planners: list[str]
@@ -289,6 +298,7 @@ class AggregateEstimates:
     ranks: dict[str, int]
     n_resamples: int
     level: float
+    intervals: bool = True
 
 
 def profile_taus(board: Board, n: int = 61) -> np.ndarray:
@@ -346,6 +356,19 @@ def estimate(board: Board, n_resamples: int = N_RESAMPLES, level: float = LEVEL,
         return out_iqm, out_time, out_poi / n_columns, out_profile
 
     point = statistics([np.arange(len(s))[None, :] for s in board.seeds])
+    names = board.planners
+    ranked = [p for p in names if not is_reference(p)]
+    if min(len(s) for s in board.seeds) < MIN_EPISODES:  # a resample of one episode is that episode: no interval
+        poi = {}
+        for q, (a, b) in enumerate(pairs):
+            poi[(names[a], names[b])] = (float(point[2][q, 0]), None, None)
+            poi[(names[b], names[a])] = (1 - float(point[2][q, 0]), None, None)
+        return AggregateEstimates(
+            list(names), {p: (float(point[0][i, 0]), None, None) for i, p in enumerate(names)},
+            {t: {p: (float(point[1][j, i, 0]), None, None) for i, p in enumerate(names)}
+             for j, t in enumerate(all_times)},
+            poi, taus, {p: (point[3][i, 0], None, None) for i, p in enumerate(names)}, {p: 1 for p in ranked},
+            n_resamples, level, intervals=False)
     rng = np.random.default_rng(seed)
     draws = [[], [], [], []]
     done = 0
@@ -363,7 +386,6 @@ def estimate(board: Board, n_resamples: int = N_RESAMPLES, level: float = LEVEL,
         lo, hi = np.percentile(samples, [alpha, 100 - alpha])
         return float(pt), float(lo), float(hi)
 
-    names = board.planners
     iqm_est = {p: interval(point[0][i, 0], boot_iqm[i]) for i, p in enumerate(names)}
     by_time = {}
     for j, t in enumerate(all_times):
@@ -375,12 +397,12 @@ def estimate(board: Board, n_resamples: int = N_RESAMPLES, level: float = LEVEL,
         poi[(names[b], names[a])] = (1 - pt, 1 - hi, 1 - lo)
     profile = {p: (point[3][i, 0], *np.percentile(boot_profile[i], [alpha, 100 - alpha], axis=0))
                for i, p in enumerate(names)}
-    ranked = [p for p in names if not is_reference(p)]
     ranks = {p: 1 + sum(1 for o in ranked if o != p and poi[(o, p)][1] > 0.5) for p in ranked}
     return AggregateEstimates(list(names), iqm_est, by_time, poi, taus, profile, ranks, n_resamples, level)
 
 
 __all__ = [
+    "MIN_EPISODES",
     "N_RESAMPLES",
     "SCORE_KEY",
     "AggregateEstimates",

@@ -226,6 +226,7 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
                                   command=command, quick=store.quick, reference=reference, log=log,
                                   published_csv=published,
                                   published_from=plan.against["folder"] if plan.against else None, power=power,
+                                  published_unverified=bool(plan.against and plan.against.get("unverified")),
                                   made_on=[describe_machine(m) for m in store.machines])
     wall = time.perf_counter() - t0
     return Summary(Path(out_dir), len(jobs), skipped, len(todo), wall, files)

@@ -121,14 +121,15 @@ def plot_profile(table: EpisodeTable, est: agg_stats.AggregateEstimates, path: s
         label = planner + (" (reference, knows the true ROI)" if dashed else "") \
             + (" (published)" if planner in table.published else "")
         ax.plot(est.taus, point, color=colours[planner], linestyle="--" if dashed else "-", label=label)
-        ax.fill_between(est.taus, low, high, color=colours[planner], alpha=0.2, linewidth=0)
+        if low is not None:  # no band where a task has one episode
+            ax.fill_between(est.taus, low, high, color=colours[planner], alpha=0.2, linewidth=0)
     ax.set_xlabel(f"normalised score tau (0: {lower}, 1: {upper}, per task and report time)")
     ax.set_ylabel("fraction of episodes with score > tau")
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
     fig.legend(*ax.get_legend_handles_labels(), loc="outside right center", fontsize="small")
-    fig.suptitle(f"Performance profile over every task and report time, {est.level:.0%} stratified bootstrap band",
-                 fontsize="medium")
+    band = f", {est.level:.0%} stratified bootstrap band" if est.intervals else " (one episode: no band)"
+    fig.suptitle(f"Performance profile over every task and report time{band}", fontsize="medium")
     path = Path(path)
     write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     return path

@@ -42,6 +42,13 @@ class PowerCell:
     sd: float  # [points] of the paired difference (ddof 1)
     half_width: float | None  # [points] of the bootstrap interval reached; None with one episode
     needed: int  # episodes the rule asks for
+    low: float | None = None  # [points] the paired bootstrap interval of the mean difference; None with one episode
+    high: float | None = None
+
+    @property
+    def decided(self) -> bool:
+        """Whether the paired interval excludes 0: the board tells which of the two is ahead."""
+        return self.low is not None and (self.low > 0 or self.high < 0)
 
 
 def episodes_needed(sd: float, half_width: float) -> int:
@@ -85,8 +92,22 @@ def power_rule(rows: Iterable[dict[str, Any]], reference: str, half_width: float
         _, lo, hi = bootstrap_ci(d)
         reached = None if lo is None else float(max(d.mean() - lo, hi - d.mean()))
         needed = episodes_needed(sd, half_width) if math.isfinite(sd) else 2
-        cells.append(PowerCell(task, t, p, int(d.size), sd, reached, needed))
+        cells.append(PowerCell(task, t, p, int(d.size), sd, reached, needed, lo, hi))
     return cells
+
+
+def undecided_below_count(cells: Iterable[PowerCell]) -> dict[str, dict[str, list[float]]]:
+    """Per task flown with fewer episodes than the rule asks for, the planners whose paired interval
+    with the reference holds 0 (or that have none), with those report times: the comparisons the board
+    cannot decide. A comparison decided (its interval excludes 0) is decided however few the episodes."""
+    cells = list(cells)
+    short = {task for task, c in needed_per_task(cells).items()
+             if max(x.episodes for x in cells if x.task == task) < c.needed}
+    out: dict[str, dict[str, list[float]]] = {}
+    for c in cells:
+        if c.task in short and not c.decided:
+            out.setdefault(c.task, {}).setdefault(c.planner, []).append(c.time_s)
+    return out
 
 
 def needed_per_task(cells: Iterable[PowerCell]) -> dict[str, PowerCell]:
@@ -98,4 +119,5 @@ def needed_per_task(cells: Iterable[PowerCell]) -> dict[str, PowerCell]:
     return out
 
 
-__all__ = ["POWER_HALF_WIDTH", "PowerCell", "episodes_needed", "needed_per_task", "paired_differences", "power_rule"]
+__all__ = ["POWER_HALF_WIDTH", "PowerCell", "episodes_needed", "needed_per_task", "paired_differences", "power_rule",
+           "undecided_below_count"]

@@ -55,7 +55,7 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
                     notes: Sequence[str] = (), published_from: str | None = None,
                     power: float | None = POWER_HALF_WIDTH, profile_png: str | None = None,
                     estimates: tuple[agg_stats.Board, agg_stats.AggregateEstimates | None] | None = None,
-                    made_on: Sequence[str] = ()) -> str:
+                    made_on: Sequence[str] = (), published_unverified: bool = False) -> str:
     """The whole leaderboard.md.
 
     Args:
@@ -64,6 +64,8 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
         profile_png: the performance-profile plot's file name, shown beside the aggregate.
         estimates: :func:`aggregate_estimates` of ``table`` (computed when None).
         made_on: where the rows were made, one line per machine (run.json's ``machine``).
+        published_unverified: the published board records no row digests and was used with
+            ``--trust-unverified``: said beside the published rows.
     """
     counts = sorted({table.episodes(t, p) for t in table.tasks for p in table.planners if table.episodes(t, p)})
     n_text = (" to ".join(str(c) for c in (counts[0], counts[-1])) if len(counts) > 1
@@ -88,6 +90,11 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
             + (", ".join(f"`{p}`" for p in new) or "no planner")
             + " flew its tasks, task configurations and episode seeds, so every row pairs with every published "
             "row episode by episode.", ""]
+        if published_unverified:
+            parts += [
+                f"**The published rows are unverified**: `{published_from or '?'}`'s `run.json` records no row "
+                "digests, so a row changed since it was made cannot be told; they were used as "
+                "`--trust-unverified` asks (their episodes, report times and completeness were checked).", ""]
     if estimates is None:
         estimates = aggregate_estimates(table)
     parts += [aggregate_section(table, *estimates, profile_png=profile_png)]
@@ -164,7 +171,7 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
                  quick: bool = False, reference: str | None = DEFAULT_REFERENCE,
                  log: Callable[[str], None] | None = None, published_csv: str | Path | None = None,
                  published_from: str | None = None, power: float | None = POWER_HALF_WIDTH,
-                 made_on: Sequence[str] = ()) -> list[Path]:
+                 made_on: Sequence[str] = (), published_unverified: bool = False) -> list[Path]:
     """Write ``leaderboard.md``, ``performance_profile.png``, ``curves_<task>.png`` and
     ``runtime_per_decision.png`` from a results.csv.
 
@@ -176,6 +183,7 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
         published_from: the published board's folder, as the report names it.
         power: the power rule's half-width target in points (None: no power section).
         made_on: where the rows were made (one line per machine), said in one line at the top.
+        published_unverified: the published rows were used unverified (``--trust-unverified``).
 
     Returns:
         The paths written.
@@ -213,7 +221,7 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
             log(f"note: {note}")
     md = out_dir / "leaderboard.md"
     text = markdown_report(table, command, quick, [p.name for p in written if p.name != PROFILE_PNG], reference,
-                           notes, published_from, power, profile_png, estimates, made_on)
+                           notes, published_from, power, profile_png, estimates, made_on, published_unverified)
     write_atomically(md, lambda tmp: tmp.write_text(text))
     return [md, *written]
 

@@ -9,14 +9,17 @@ The folder holds:
     results do not depend on it. Also ``machine`` (:func:`~ipp_bench.eval.machine.machine_info`;
     rows appended elsewhere add ``other_machines``), and ``rows``: a 32-bit digest of every
     results.csv row (:func:`~ipp_bench.eval.results_csv.row_digest`), rewritten after each
-    episode's append.
+    episode's append and, once the folder is complete, in file order: what a published board is
+    verified against (:mod:`ipp_bench.eval.verify`). ``rows.added`` marks digests added after the
+    rows were made.
 ``results.csv``
-    :mod:`ipp_bench.eval.results_csv`. An episode's rows are appended in one write, flushed and
-    fsync'ed as soon as it finishes, so a killed run loses no finished episode. On resume a torn
-    last line (the write a kill interrupted) and episodes with missing rows (a row deleted by hand)
-    are dropped and run again. Any other bad row refuses the resume in one line naming the file,
-    the line and what is wrong, and nothing is written
-    (:func:`~ipp_bench.eval.results_csv.checked_rows`): a row that does not parse, a value that is
+    :mod:`ipp_bench.eval.results_csv`. Its size and first line are checked before it is read (a
+    file bigger than the run's rows can be, or not starting with the header, is refused by name).
+    An episode's rows are appended in one write, flushed and fsync'ed as soon as it finishes, so a
+    killed run loses no finished episode. On resume a torn last line (the write a kill interrupted)
+    and episodes with missing rows (a row deleted by hand) are dropped and run again. Any other bad
+    row refuses the resume in one line naming the file, the line and what is wrong, and nothing is
+    written (:func:`~ipp_bench.eval.results_csv.checked_rows`): a row that does not parse, a value that is
     not a finite number, a task, planner, seed or report time that is not this run's, a repeated
     row, or a row whose digest run.json does not record (edited by hand; only the rows of the one
     append a kill cut off from run.json's update may lack one). A run.json without ``rows`` gets
@@ -42,19 +45,21 @@ from pathlib import Path
 from typing import Any
 
 from ..core.data import OutputWriteError, check_output_dir, write_atomically
-from .machine import machine_info
+from .machine import machine_info, same_machine
 from .plan import Plan, report_times
 from .results_csv import (
     RESULTS_CSV,
     ROW_DIGEST_HEX,
     BadRow,
+    check_results_file,
     checked_rows,
     finite_problem,
     format_header,
     format_rows,
+    max_results_bytes,
     row_digest,
 )
-from .run_json import RUN_JSON, ResultsMismatchError, new_meta, resumed_meta
+from .run_json import ROWS_ADDED_KEY, RUN_JSON, ResultsMismatchError, new_meta, resumed_meta
 
 #: the copy of a published board's results.csv in a folder paired with it (``--against``)
 PUBLISHED_CSV = "published_results.csv"
@@ -191,12 +196,16 @@ class ResultsStore:
         if not self.csv_path.exists() or self.csv_path.stat().st_size == 0:
             self._rewrite_rows = []
             return
-        try:
+        expected = {t: report_times(t, self.plan.env_overrides) for t in self.plan.tasks}
+        rows_at_most = sum(len(ts) for ts in expected.values()) * len(self.plan.planners) * len(self.plan.seeds)
+        try:  # its size and first line before reading it: a huge file that is not CSV is never read whole
+            check_results_file(self.csv_path, max_results_bytes(rows_at_most, self.plan.tasks, self.plan.planners))
             text = self.csv_path.read_text()
         except (OSError, UnicodeDecodeError) as err:
             raise ResultsMismatchError(f"{self.csv_path} cannot be read ({getattr(err, 'strerror', None) or err}); "
                                        f"pass a new --out DIR (or delete {self.dir})") from None
-        expected = {t: report_times(t, self.plan.env_overrides) for t in self.plan.tasks}
+        except ValueError as err:
+            raise ResultsMismatchError(f"{err}; pass a new --out DIR (or delete {self.dir})") from None
         rows, notes, self._digests = self._checked_rows(text, expected)
         wanted = {job.key for job in self.plan.jobs()}
         groups: dict[tuple[str, str, int], dict[float, dict[str, Any]]] = {}
@@ -249,7 +258,11 @@ class ResultsStore:
                 "(the other rows are kept), or pass a new --out DIR") from None
 
     def _write_meta(self, meta: dict[str, Any]) -> None:
-        meta["rows"] = {"count": len(self._digests), "digests": "".join(self._digests)}
+        rows = {"count": len(self._digests), "digests": "".join(self._digests)}
+        recorded = (self._stored_meta or {}).get("rows")
+        if isinstance(recorded, dict) and ROWS_ADDED_KEY in recorded:  # older rows' digests added after the fact
+            rows[ROWS_ADDED_KEY] = recorded[ROWS_ADDED_KEY]
+        meta["rows"] = rows
         write_atomically(self.run_json, lambda tmp: tmp.write_text(json.dumps(meta, indent=2) + "\n"))
         self._stored_meta = meta
 
@@ -305,7 +318,8 @@ class ResultsStore:
         self._digests += [row_digest(line) for line in text.splitlines()]
         meta = dict(self._stored_meta or self._new_meta())
         here = machine_info()
-        if meta.get("machine") != here and here not in meta.get("other_machines", []):
+        recorded = [m for m in [meta.get("machine"), *meta.get("other_machines", [])] if isinstance(m, dict)]
+        if not any(same_machine(m, here) for m in recorded):
             meta["other_machines"] = [*meta.get("other_machines", []), here]
         self._write_meta(meta)
 
@@ -316,7 +330,11 @@ class ResultsStore:
         digests = [row_digest(line) for line in body.splitlines()]
         # the same rows: the digests run.json records still hold while it is rewritten
         write_atomically(self.csv_path, lambda tmp: tmp.write_text(format_header() + body))
-        if digests != self._digests:
+        recorded = (self._stored_meta or {}).get("rows")
+        # run.json records every row's digest in file order: what a published board is verified against
+        # (a kill between an episode's append and run.json's update leaves that episode unrecorded until now)
+        stale = isinstance(recorded, dict) and recorded.get("digests") != "".join(digests)
+        if digests != self._digests or stale:
             self._digests = digests
             self._write_meta(dict(self._stored_meta or self._new_meta()))
 

@@ -8,6 +8,10 @@ thing a reader drops; any other bad row raises, naming the line.
 
 Each line has a 32-bit digest (:func:`row_digest`) that ``run.json`` records
 (:mod:`ipp_bench.eval.results`), so that a number changed by hand, which still parses, is caught.
+
+Before a file is read, :func:`check_results_file` looks at its size and its first line only: a file
+bigger than its rows can be, or one that does not start with the header, is refused by name without
+being read whole (a 3 GB file that is not CSV is one stat and one short read).
 """
 
 from __future__ import annotations
@@ -32,6 +36,41 @@ _FLOAT_COLUMNS = tuple(c for c in COLUMNS if c not in KEY_COLUMNS + _INT_COLUMNS
 #: hex digits of each row's digest in run.json (``rows.digests``): 32 bits, so a row edited by hand
 #: passes for another row of a 10 000-row board with a chance of about 2 in a million
 ROW_DIGEST_HEX = 8
+#: the most characters a number of a row takes (``repr`` of a float: 24 at most; a seed: 10)
+_NUMBER_CHARS = 32
+
+
+def max_results_bytes(rows: int, tasks: Collection[str], planners: Collection[str]) -> int:
+    """The most bytes a results.csv of ``rows`` rows of ``tasks`` and ``planners`` can hold: the header,
+    every row at its longest (names quoted with every character doubled, every number at
+    :data:`_NUMBER_CHARS`), and one more for a torn last line."""
+    names = 2 * (max(map(len, tasks), default=0) + max(map(len, planners), default=0)) + 4
+    per_row = names + (len(COLUMNS) - 2) * _NUMBER_CHARS + len(COLUMNS)
+    return len(format_header()) + (rows + 1) * per_row
+
+
+def check_results_file(path: str | Path, max_bytes: int | None = None) -> None:
+    """Refuse, before reading it, a results.csv that cannot be one: bigger than ``max_bytes``
+    (:func:`max_results_bytes` of the rows it should hold), or whose first line is not the header.
+    An empty file passes (no rows yet).
+
+    Raises:
+        ValueError: ``FILE: N bytes, more than ...`` or ``FILE:1: not a results.csv ...``, one line.
+    """
+    path = Path(path)
+    size = path.stat().st_size
+    if size == 0:
+        return
+    if max_bytes is not None and size > max_bytes:
+        raise ValueError(f"{path}: {size} bytes, more than its rows can take ({max_bytes} bytes at most): not "
+                         "the results.csv of this board (restore it from the board's source)")
+    header = format_header().encode()
+    with path.open("rb") as fh:
+        head = fh.read(len(header))
+    if head != header:
+        first = head.split(b"\n", 1)[0][:60].decode("utf-8", "replace")
+        raise ValueError(f"{path}:1: not a results.csv of this version: its first line starts {first!r}, "
+                         f"expected the header {format_header().strip()!r}")
 
 
 def row_digest(line: str) -> str:
@@ -66,7 +105,7 @@ def format_rows(rows: Iterable[dict[str, Any]]) -> str:
     return buf.getvalue()
 
 
-def _parse_row(fields: list[str]) -> dict[str, Any]:
+def parse_row(fields: list[str]) -> dict[str, Any]:
     """One row typed; a ValueError says which field is wrong (``seed = '1.5' is not an integer``)."""
     if len(fields) != len(COLUMNS):
         raise ValueError(f"{len(fields)} fields, expected {len(COLUMNS)} ({','.join(COLUMNS)})")
@@ -89,9 +128,11 @@ def read_results(path: str | Path) -> list[dict[str, Any]]:
 
     Raises:
         ValueError: ``FILE:LINE: what is wrong`` for the first row that does not parse or holds a
-            value that is not a finite number (a bad row is never skipped silently).
+            value that is not a finite number (a bad row is never skipped silently); ``FILE:1: not a
+            results.csv ...`` for a file whose first line is not the header (read before the rest).
     """
     path = Path(path)
+    check_results_file(path)  # its first line, before the whole file is read
     lines, _ = complete_lines(path.read_text())
     if not lines:
         return []
@@ -101,7 +142,7 @@ def read_results(path: str | Path) -> list[dict[str, Any]]:
     rows = []
     for i, fields in enumerate(csv.reader(lines[1:]), start=2):
         try:
-            row = _parse_row(fields)
+            row = parse_row(fields)
         except ValueError as err:
             raise ValueError(f"{path}:{i}: {err}") from None
         problem = finite_problem(row)
@@ -152,7 +193,7 @@ def checked_rows(text: str, expected: dict[str, tuple[float, ...]], planners: Se
     tail_key = None
     for number, (line, fields) in enumerate(zip(lines[1:], csv.reader(lines[1:])), start=2):
         try:
-            row = _parse_row(fields)
+            row = parse_row(fields)
         except ValueError as err:
             raise BadRow(number, str(err)) from None
         problem = finite_problem(row)
@@ -184,5 +225,6 @@ def checked_rows(text: str, expected: dict[str, tuple[float, ...]], planners: Se
     return rows, notes, digests
 
 
-__all__ = ["COLUMNS", "RESULTS_CSV", "TIMING_COLUMNS", "BadRow", "checked_rows", "finite_problem", "format_header",
-           "format_rows", "read_results", "row_digest"]
+__all__ = ["COLUMNS", "RESULTS_CSV", "TIMING_COLUMNS", "BadRow", "check_results_file", "checked_rows",
+           "finite_problem", "format_header", "format_rows", "max_results_bytes", "parse_row", "read_results",
+           "row_digest"]

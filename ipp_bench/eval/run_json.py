@@ -25,6 +25,9 @@ from .plan import Plan
 
 RUN_JSON = "run.json"
 FORMAT_VERSION = 1
+#: ``rows`` key of a folder whose digests were added after its rows were made, saying when and from what
+#: (kept when the folder is extended: the older rows' digests vouch for them from then on only)
+ROWS_ADDED_KEY = "added"
 #: fingerprint keys that a folder may lack: filled in (with a note) instead of refusing the folder
 ADDED_FINGERPRINT_KEYS = ("planner_fingerprints",)
 
@@ -132,4 +135,4 @@ def _refuse_unfingerprinted_rows(csv_path: Path, fingerprints: dict[str, dict[st
             f"{csv_path.name} to fly them again with today's, or pass a new --out DIR")
 
 
-__all__ = ["RUN_JSON", "ResultsMismatchError", "new_meta", "resumed_meta"]
+__all__ = ["FORMAT_VERSION", "ROWS_ADDED_KEY", "RUN_JSON", "ResultsMismatchError", "new_meta", "resumed_meta"]

@@ -325,3 +325,34 @@ def test_the_comparison_catches_a_perturbed_metric():
             assert bool(row_differences(rows, perturbed)) is differs, (key, rel)
     perturbed = [dict(r, decisions=r["decisions"] + 1) for r in rows]
     assert row_differences(rows, perturbed)
+
+
+# -- the committed reports ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("folder", [f if f == "quick" else pytest.param(f, marks=pytest.mark.slow)
+                                    for f in FOLDERS if f not in NOT_RERUNNABLE])
+def test_a_committed_report_is_what_its_results_make(folder):
+    """leaderboard.md is a pure function of results.csv (and the command and machine it names): made
+    again from the committed rows it is the committed file, byte for byte."""
+    pytest.importorskip("matplotlib")  # the report names its plots
+    from ipp_bench.eval.machine import describe_machine
+    from ipp_bench.eval.markdown_stats import aggregate_estimates
+    from ipp_bench.eval.plots import PROFILE_PNG, RUNTIME_PNG, curves_png
+    from ipp_bench.eval.report import markdown_report
+    from ipp_bench.eval.tables import EpisodeTable
+
+    meta = _run_json(folder)
+    committed = (BASELINES / folder / "leaderboard.md").read_text()
+    command = re.search(r"^Made with `(.*)`", committed, re.M).group(1)  # the command that last wrote it
+    words = shlex.split(command)
+    reference = words[words.index("--reference") + 1] if "--reference" in words else "greedy"
+    power = float(words[words.index("--power") + 1]) if "--power" in words else 3.0
+    table = EpisodeTable(read_results(BASELINES / folder / RESULTS_CSV), meta["tasks"], meta["planners"])
+    estimates = aggregate_estimates(table)
+    plots = [curves_png(t) for t in table.tasks if table.times.get(t)] + [RUNTIME_PNG]
+    machines = [m for m in [meta.get("machine"), *meta.get("other_machines", [])] if isinstance(m, dict)]
+    text = markdown_report(table, command, bool(meta.get("quick")), plots, reference, (), None, power,
+                           PROFILE_PNG if estimates[1] is not None else None, estimates,
+                           [describe_machine(m) for m in machines])
+    assert text == committed, f"baselines/{folder}/leaderboard.md is not what its results.csv makes: regenerate it"

@@ -184,3 +184,63 @@ def test_published_rows_are_marked_and_the_new_planner_is_set_against_each():
     assert "copied from the published board `baselines/toy`" in md
     versus = md.split("`good` minus each other planner, on the same episodes")[1]
     assert "| **Toy-v0** | `bad` (published) | +30.0 [+30.0, +30.0], won 3/3 |" in versus
+
+
+# -- no false significance --------------------------------------------------------------------------
+def board_rows(planners, seeds, tasks=("ipp_bench/A-v0", "ipp_bench/B-v0"), spread=0.0):
+    """Rows of ``planners`` (name -> base reduction) on ``tasks`` and ``seeds``, two report times;
+    ``spread``: points added per episode index, planner by planner in turn (so the pairs overlap)."""
+    rows = []
+    for task in tasks:
+        for k, (planner, base) in enumerate(planners.items()):
+            for i, seed in enumerate(seeds):
+                for t in (50.0, 100.0):
+                    v = base + t / 10 + spread * ((i + k) % len(seeds))
+                    rows.append(dict(task=task, planner=planner, seed=seed, time_s=t, trace_roi=1.0, rmse_roi=0.2,
+                                     uncertainty_reduction_pct=v, rmse_reduction_pct=v / 2, decisions=3,
+                                     decision_time_mean_s=0.01, decision_time_max_s=0.02, episode_wall_s=1.0))
+    return rows
+
+
+def _aggregate(md: str) -> str:
+    return md.split("## Aggregate over the benchmark tasks")[1].split("## Per task")[0]
+
+
+def test_one_episode_gives_no_interval_no_bold_and_no_rank_in_the_aggregate():
+    from ipp_bench.eval.report import markdown_report
+
+    rows = board_rows({"random": 20.0, "greedy": 60.0, "coverage": 40.0, "oracle": 80.0}, seeds=(1,))
+    aggregate = _aggregate(markdown_report(EpisodeTable(rows)))
+    tables = [line for line in aggregate.splitlines() if line.startswith("| ") and "`" in line]
+    assert tables and not any("[" in line for line in tables), aggregate  # no [0.00, 0.00] nor [1.00, 1.00]
+    assert not any("**" in line for line in tables), aggregate  # P(oracle > random) = 1.00 is not bold
+    ranks = [line.split("|")[1].strip() for line in tables[:4]]
+    assert ranks == ["1=", "1=", "1=", "–"], ranks  # one episode separates no planner
+    assert "1 episode each" in aggregate and "1 episodes" not in aggregate
+    assert "no intervals" in aggregate.lower() and "one episode" in aggregate
+
+
+def test_the_score_scale_without_random_or_oracle_rows_reads_as_words():
+    from ipp_bench.eval.report import markdown_report
+
+    md = markdown_report(EpisodeTable(board_rows({"greedy": 60.0, "coverage": 40.0}, seeds=(1, 2, 3), spread=1.0)))
+    assert "rows) (0)" not in md and "rows) (1)" not in md
+    assert ("from a 0 % reduction (score 0; the board has no `random` rows) to a 100 % reduction (score 1; the "
+            "board has no `oracle` rows)") in md
+    partial = markdown_report(EpisodeTable(board_rows({"random": 20.0, "greedy": 60.0}, seeds=(1, 2, 3), spread=1.0)))
+    assert "from `random` (0) to a 100 % reduction (score 1; the board has no `oracle` rows)" in partial
+
+
+def test_below_the_power_rules_count_the_report_names_the_comparisons_it_cannot_decide():
+    """``close`` is within a point of greedy with a spread of 9 points: 3 episodes decide nothing about
+    it; ``far`` is 40 points below on every episode: decided however few the episodes."""
+    from ipp_bench.eval.report import markdown_report
+
+    rows = board_rows({"greedy": 60.0, "close": 60.5, "far": 20.0}, seeds=(1, 2, 3), spread=9.0)
+    md = markdown_report(EpisodeTable(rows), reference="greedy")
+    power = md.split("## Episodes for a")[1].split("## Absolute values")[0]
+    undecided = power.split("cannot decide")[1]
+    assert "**A-v0**" in undecided and "`close` at 50, 100 s" in undecided
+    assert "`far`" not in undecided
+    enough = board_rows({"greedy": 60.0, "far": 20.0}, seeds=(1, 2, 3))  # paired sd 0: 2 episodes suffice
+    assert "cannot decide" not in markdown_report(EpisodeTable(enough), reference="greedy")

@@ -121,3 +121,17 @@ def test_evaluate_shows_progress_on_long_episodes_on_stderr(capsys, monkeypatch)
     json.loads(out)  # stdout stays the JSON alone
     lines = [ln for ln in err.splitlines() if ln]
     assert lines and all(ln.startswith("  ... mission time ") and "of 40 s" in ln for ln in lines)
+
+
+def test_a_reader_that_leaves_early_gets_no_traceback():
+    """``ipp-bench power DIR | head -1``: the pipe closes before the output is written; no BrokenPipeError trace."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    board = Path(__file__).resolve().parents[1] / "baselines" / "v2"
+    proc = subprocess.Popen([sys.executable, "-m", "ipp_bench.cli", "power", str(board)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    proc.stdout.close()  # as head does once it has its lines
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 0 and "Traceback" not in err and "BrokenPipe" not in err, err

@@ -22,18 +22,91 @@ compiles them again and nothing is cached.
 
 from __future__ import annotations
 
+import sys
+import traceback
+import warnings
+from pathlib import Path
+
 import numpy as np
 
 from . import lowrank, node_table, readouts
-from .jit import require_numba
+from .jit import numba, require_numba
 
 #: every module of kernels (:func:`warm_up` compiles all of theirs)
 MODULES = (readouts, node_table, lowrank)
+#: [s] about how long compiling every kernel takes on one core of a 2-core machine (said before it starts)
+COMPILE_S = 40
+_READY = False
+
+
+class KernelsRunInterpretedWarning(RuntimeWarning):
+    """``NUMBA_DISABLE_JIT`` is set: the fast searches run as plain Python, many times slower."""
+
+
+def _dispatchers() -> list:
+    return [v for m in MODULES for v in vars(m).values() if hasattr(v, "_cache") and hasattr(v, "py_func")]
+
+
+def _index_files() -> list[Path]:
+    """The cache index file of every kernel (none where numba may write no cache)."""
+    paths = [getattr(getattr(d._cache, "_cache_file", None), "_index_path", None) for d in _dispatchers()]
+    return [Path(p) for p in paths if p is not None]
+
+
+def cached() -> bool:
+    """Whether every kernel's machine code is in numba's cache (a process then loads it in about a second)."""
+    if numba is None or numba.config.DISABLE_JIT:
+        return True  # nothing to compile
+    files = _index_files()
+    return bool(files) and len(files) == len(_dispatchers()) and all(f.is_file() for f in files)
+
+
+def _clear_cache() -> int:
+    """Remove this package's cache files (index and data); returns how many."""
+    removed = 0
+    for d in _dispatchers():
+        index = getattr(getattr(d._cache, "_cache_file", None), "_index_path", None)
+        if index is None:
+            continue
+        stem = Path(index).name.rsplit(".nbi", 1)[0]
+        for f in Path(index).parent.glob(f"{stem}*"):
+            if f.suffix in (".nbi", ".nbc"):
+                f.unlink(missing_ok=True)
+                removed += 1
+    return removed
+
+
+def _from_the_cache(err: BaseException) -> bool:
+    return any("numba" in f.filename and "caching" in f.filename for f in traceback.extract_tb(err.__traceback__))
 
 
 def warm_up() -> None:
-    """Compile every kernel now (once per process; nothing after it compiles), not in a decision."""
+    """Compile every kernel now (once per process; nothing after it compiles), not in a decision.
+
+    A cache file that cannot be read (cut short, say) is removed, said in one line, and the kernels are
+    compiled again. With ``NUMBA_DISABLE_JIT`` set they run as plain Python: a warning says so, once.
+    """
+    global _READY
     require_numba("the fast searches")
+    if _READY:
+        return
+    if numba.config.DISABLE_JIT:
+        warnings.warn("NUMBA_DISABLE_JIT is set: the fast searches of mcts and cmaes run as plain Python, many "
+                      "times slower (unset it to compile them)", KernelsRunInterpretedWarning, stacklevel=2)
+    try:
+        _compile_all()
+    except Exception as err:  # noqa: BLE001 - only a failure inside numba's cache loading is handled
+        if not _from_the_cache(err):
+            raise
+        removed = _clear_cache()
+        print(f"ipp-bench: the search kernels' compiled cache could not be read ({type(err).__name__}: "
+              f"{' '.join(str(err).split())}); removed its {removed} files, compiling again (about {COMPILE_S} s, "
+              "once)", file=sys.stderr, flush=True)
+        _compile_all()
+    _READY = True
+
+
+def _compile_all() -> None:
     P = np.ones((2, 2)) + np.eye(2)
     readouts.readout_blocks(P, P, np.array([0, 1, 2], dtype=np.int64), np.array([0, 1], dtype=np.int64), np.ones(2),
                             np.ones(2))
@@ -65,4 +138,4 @@ def warm_up() -> None:
                         1.0, 8.0, 1.0, mode, 0, 10.0, 1.0, g, 0, 0.0, 1.0, *terms)
 
 
-__all__ = ["MODULES", "require_numba", "warm_up"]
+__all__ = ["COMPILE_S", "MODULES", "KernelsRunInterpretedWarning", "cached", "require_numba", "warm_up"]

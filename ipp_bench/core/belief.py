@@ -4,7 +4,9 @@ The prior is a Matern 3/2 kernel over the cell centres in metres. Measurements a
 cells (``z = H f + noise``); each sensor row touches only the cells of one footprint, so the update
 works on those columns: with ``C = P[:, cells]`` and ``W = H[:, cells]`` the gain costs O(n m q)
 and the covariance downdate ``P -= A A^T`` (``A = C W^T L^-T``, ``L L^T = S``) is symmetric by
-construction. Pure numpy/scipy, float64.
+construction, so a belief's update downdates the lower triangle only (BLAS syrk, half the work of the
+whole product) and copies it onto the upper one when the whole matrix is read (:attr:`GPBelief.cov`).
+Pure numpy/scipy, float64.
 
 One module on purpose (over 400 lines): the prior, the one Kalman update every belief shares and
 the camera-error belief built on it are one derivation; split, the update's invariants would span files.
@@ -41,17 +43,35 @@ def prior_covariance(xy: np.ndarray, length_scale: float, signal_variance: float
     return cov
 
 
-RESYMMETRISE_EVERY = 32  # updates between exact re-symmetrisations (round-off is ~1e-17 each)
+_GRID_PRIORS: dict[tuple, np.ndarray] = {}
+_GRID_PRIOR_MAX_BYTES = 64 << 20  # [B] kept per process: a 30 x 30 prior is 6.5 MB, a 64 x 64 one 134 MB (not kept)
 
 
-def gain_factor(cov: np.ndarray, cells: np.ndarray, W: np.ndarray, R: np.ndarray):
+def grid_prior_covariance(shape: tuple[int, int], resolution: float, length_scale: float, signal_variance: float,
+                          nugget: float = 0.0) -> np.ndarray:
+    """:func:`prior_covariance` over the cell centres of a rows x cols grid, read-only: built once per
+    process and grid (every episode of a task starts from the same prior), while the priors kept stay
+    under 64 MB; a grid too large to keep is built afresh."""
+    key = (tuple(int(v) for v in shape), float(resolution), float(length_scale), float(signal_variance), float(nugget))
+    cov = _GRID_PRIORS.get(key)
+    if cov is None:
+        cov = prior_covariance(cell_centres(key[0], key[1]), *key[2:])
+        if cov.nbytes + sum(c.nbytes for c in _GRID_PRIORS.values()) <= _GRID_PRIOR_MAX_BYTES:
+            cov.flags.writeable = False
+            _GRID_PRIORS[key] = cov
+    return cov
+
+
+def gain_factor(cov: np.ndarray, cells: np.ndarray, W: np.ndarray, R: np.ndarray,
+                columns: np.ndarray | None = None):
     """The Kalman update of ``cov`` for H = W on columns ``cells``, in factored form.
 
     Returns (A, L, C) with C = P H^T (n, m), L L^T = S = H P H^T + R and A = C L^-T, so that the
     posterior covariance is ``P - A A^T`` and the gain is ``K = C S^-1``. Every covariance update
-    and prediction in ipp-bench goes through this one function.
+    and prediction in ipp-bench goes through this one function. ``columns``: ``P[:, cells]`` where
+    the caller has it (a :class:`GPBelief` whose upper triangle lags: :meth:`GPBelief.columns`).
     """
-    C = cov[:, cells] @ W.T
+    C = (cov[:, cells] if columns is None else columns) @ W.T
     S = W @ C[cells, :] + _as_cov(R, W.shape[0])
     L = np.linalg.cholesky(0.5 * (S + S.T))
     A = solve_triangular(L, C.T, lower=True, check_finite=False).T
@@ -116,12 +136,22 @@ def downdate_inplace(cov: np.ndarray, A: np.ndarray) -> None:
     blas.dgemm(-1.0, A, A, 1.0, cov.T, trans_b=True, overwrite_c=True)
 
 
-def symmetrise_inplace(cov: np.ndarray) -> None:
-    """Make ``cov`` exactly symmetric again (gemm leaves ~1e-17 asymmetry per update)."""
-    upper = np.triu_indices_from(cov, 1)
-    mean = 0.5 * (cov[upper] + cov.T[upper])
-    cov[upper] = mean
-    cov.T[upper] = mean
+def downdate_lower_inplace(cov: np.ndarray, A: np.ndarray) -> None:
+    """The lower triangle of ``cov -= A A^T`` in place with one BLAS syrk (half of gemm's work); the strict
+    upper triangle is left as it was (:func:`mirror_lower_inplace` copies the lower one over it)."""
+    if not cov.flags.c_contiguous:
+        raise ValueError("downdate_lower_inplace needs a C-contiguous covariance")
+    # cov.T is the same memory in Fortran order, whose upper triangle is cov's lower one
+    blas.dsyrk(-1.0, np.asfortranarray(A), beta=1.0, c=cov.T, lower=False, overwrite_c=True)
+
+
+def mirror_lower_inplace(cov: np.ndarray, tile: int = 128) -> None:
+    """Copy the lower triangle of ``cov`` onto its strict upper triangle, tile by tile: cov exactly symmetric."""
+    n = cov.shape[0]
+    for i in range(0, n, tile):
+        cov[:i, i:i + tile] = cov[i:i + tile, :i].T
+        block = cov[i:i + tile, i:i + tile]
+        block[...] = np.tril(block) + np.tril(block, -1).T
 
 
 def _as_cov(R: np.ndarray, m: int) -> np.ndarray:
@@ -140,17 +170,42 @@ class GPBelief:
 
     Attributes:
         mean: (n,) posterior mean, row-major cells.
-        cov: (n, n) posterior covariance.
+        cov: (n, n) posterior covariance (a property: see :attr:`cov`).
     """
 
     def __init__(self, mean: np.ndarray, cov: np.ndarray, shape: tuple[int, int] | None = None):
         self.mean = np.array(mean, dtype=np.float64)
-        self.cov = np.array(cov, dtype=np.float64)
+        self._cov = np.array(cov, dtype=np.float64)
+        self._upper_stale = False  # the strict upper triangle of _cov lags the lower one (see cov)
         n = self.mean.shape[0]
-        if self.mean.shape != (n,) or self.cov.shape != (n, n):
-            raise ValueError(f"mean {self.mean.shape} and cov {self.cov.shape} do not match: expected (n,) and (n, n)")
+        if self.mean.shape != (n,) or self._cov.shape != (n, n):
+            raise ValueError(f"mean {self.mean.shape} and cov {self._cov.shape} do not match: expected (n,) and (n, n)")
         self.shape = shape if shape is not None else (1, n)
-        self._updates = 0
+
+    @property
+    def cov(self) -> np.ndarray:
+        """(n, n) posterior covariance, whole and exactly symmetric. An update downdates its lower triangle
+        only; the first read after it copies that onto the upper one (:func:`mirror_lower_inplace`). The
+        belief's own update, variances, look gains and predicted variances read the lower triangle and
+        never pay for the copy (:meth:`columns`). Writing into the returned array changes the belief."""
+        if self._upper_stale:
+            mirror_lower_inplace(self._cov)
+            self._upper_stale = False
+        return self._cov
+
+    @cov.setter
+    def cov(self, value: np.ndarray) -> None:
+        self._cov = np.asarray(value, dtype=np.float64)
+        self._upper_stale = False
+
+    def columns(self, cells: np.ndarray) -> np.ndarray:
+        """(n, len(cells)): ``cov[:, cells]``, read from the lower triangle (no copy of the whole matrix)."""
+        cov = self._cov
+        cols = cov[:, cells]
+        if self._upper_stale:  # P[i, c] for i < c lies above the diagonal: read it as P[c, i]
+            for k, c in enumerate(np.asarray(cells).tolist()):
+                cols[:c, k] = cov[c, :c]
+        return cols
 
     @classmethod
     def from_grid(cls, shape: tuple[int, int] = (15, 15), resolution: float = 2.5,
@@ -158,9 +213,8 @@ class GPBelief:
                   prior_mean: float = 0.5, nugget: float = 0.0) -> GPBelief:
         """Prior over a rows x cols grid: mean ``prior_mean``, covariance the Matern 3/2 kernel
         plus ``nugget`` [field units^2] on the diagonal (independent per-cell variation)."""
-        xy = cell_centres(shape, resolution)
-        cov = prior_covariance(xy, length_scale, signal_variance, nugget)
-        return cls(np.full(xy.shape[0], float(prior_mean)), cov, shape=tuple(shape))
+        cov = grid_prior_covariance(shape, resolution, length_scale, signal_variance, nugget)  # copied by __init__
+        return cls(np.full(cov.shape[0], float(prior_mean)), cov, shape=tuple(shape))
 
     @classmethod
     def prior(cls, grid, gp) -> GPBelief:
@@ -175,14 +229,14 @@ class GPBelief:
     @property
     def variance(self) -> np.ndarray:
         """Posterior marginal variances, clipped at 0 against round-off."""
-        return np.maximum(np.diag(self.cov), 0.0)
+        return np.maximum(np.diag(self._cov), 0.0)
 
     def copy(self) -> GPBelief:
         other = GPBelief.__new__(GPBelief)
         other.mean = self.mean.copy()
-        other.cov = self.cov.copy()
+        other._cov = self._cov.copy()
+        other._upper_stale = self._upper_stale
         other.shape = self.shape
-        other._updates = self._updates
         return other
 
     @staticmethod
@@ -210,13 +264,11 @@ class GPBelief:
         z = np.asarray(z, dtype=np.float64).reshape(-1)
         if z.shape[0] != W.shape[0]:
             raise ValueError(f"z has {z.shape[0]} values but H has {W.shape[0]} rows")
-        A, L, C = gain_factor(self.cov, cells, W, R)
+        A, L, C = gain_factor(self._cov, cells, W, R, columns=self.columns(cells))
         innovation = z - W @ self.mean[cells]
         self.mean += C @ cho_solve((L, True), innovation)
-        downdate_inplace(self.cov, A)
-        self._updates += 1
-        if self._updates % RESYMMETRISE_EVERY == 0:
-            symmetrise_inplace(self.cov)
+        downdate_lower_inplace(self._cov, A)
+        self._upper_stale = True
 
     def predict_cov(self, H: np.ndarray, R: np.ndarray) -> np.ndarray:
         """Posterior covariance after measuring with (H, R); the belief is unchanged.
@@ -229,8 +281,8 @@ class GPBelief:
 
     def predict_variance_local(self, cells: np.ndarray, W: np.ndarray, R: np.ndarray) -> np.ndarray:
         """Posterior marginal variances (n,) after a measurement; O(n m) beyond the gain."""
-        A, _, _ = gain_factor(self.cov, cells, W, R)
-        return np.maximum(np.diag(self.cov) - np.einsum("ij,ij->i", A, A), 0.0)
+        A, _, _ = gain_factor(self._cov, cells, W, R, columns=self.columns(cells))
+        return np.maximum(np.diag(self._cov) - np.einsum("ij,ij->i", A, A), 0.0)
 
     def trace_reductions(self, legs, roi: np.ndarray) -> np.ndarray:
         """For every leg: Tr(P - P+) over the cells ``roi`` (bool mask (n,)), each leg's rows fused as
@@ -243,7 +295,9 @@ class GPBelief:
             roi: (n,) bool.
         """
         batch = legs if isinstance(legs, LegBatch) else LegBatch(list(legs))
-        return trace_reductions(self.cov, batch, roi)
+        if batch.index.size == 0:
+            return np.zeros(batch.size)
+        return trace_reductions_of_rows(self.columns(batch.cells).T, batch, roi)  # rows = columns: symmetric
 
 
 class PredictedBelief:
@@ -408,7 +462,9 @@ class PersistentErrorBelief:
         self.state.update_local(cols, W, z, R)
         n = self.field.n
         self.field.mean[:] = self.state.mean[:n]
-        self.field.cov[:] = self.state.cov[:n, :n]
+        # the field's block of the state's covariance, its lower triangle current (GPBelief.cov)
+        self.field._cov[:] = self.state._cov[:n, :n]
+        self.field._upper_stale = self.state._upper_stale
 
 
 def _nis(mu: np.ndarray, P: np.ndarray, W: np.ndarray, z: np.ndarray, var: np.ndarray) -> tuple[float, int]:

@@ -47,6 +47,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .attention import input_attention
+
 NEG_INF = float("-inf")
 MASKED_LOGIT = -1e8  # finite stand-in for -inf where SB3 needs finite logits (as MaskableCategorical)
 
@@ -195,7 +197,7 @@ class AttentionEncoder(nn.Module):
         budget: torch.Tensor,
     ) -> torch.Tensor:
         """Encoder output of the current node and its neighbours, (B, 1 + k, d)."""
-        b, _, f = node_features.shape
+        b, n, f = node_features.shape
         lay = self.layer
         heads = lay.n_heads
         d = self.cfg.embed_dim
@@ -216,14 +218,14 @@ class AttentionEncoder(nn.Module):
         w_k = lay.w_kv.weight[:d].view(heads, dh, d)
         w_v = lay.w_kv.weight[d:].view(heads, dh, d)
         qk = torch.einsum("bqhe,hed->bqhd", q, w_k).reshape(b, nq * heads, d)  # W^K^T q per head
-        x = torch.cat([node_features, pos_encoding], dim=-1)  # (B, N, F + P)
         w_in = torch.cat([self.w_l.weight, self.w_pe.weight], dim=1)  # (d, F + P)
-        scores = (qk @ w_in) @ x.transpose(1, 2)  # (B, QH, N)
-        cur_col = current.view(b, 1, 1).expand(b, nq * heads, 1)
-        scores = scores.scatter_add(2, cur_col, qk @ delta.transpose(1, 2))  # current node's own input map
-        attn = torch.softmax(scores * (1.0 / math.sqrt(dh)), dim=-1)  # (B, QH, N)
-        agg = (attn @ x) @ w_in.T
-        agg = agg + (self.w_l.bias + self.w_pe.bias) + attn.gather(2, cur_col) * delta
+        # One more input column, the current node's indicator, carries its own input map: its score gains
+        # (W^K^T q).delta and the weighted sum gains a_current delta. Keys and values are then the same
+        # (B, N, F + P + 1) inputs, so the attention is one fused kernel that never forms the (B, QH, N) scores.
+        x = torch.cat([node_features, pos_encoding, _onehot(current, n, node_features.dtype)], dim=-1)
+        q_in = torch.cat([qk @ w_in, qk @ delta.transpose(1, 2)], dim=-1)  # (B, QH, F + P + 1)
+        a = input_attention(q_in, x, 1.0 / math.sqrt(dh))  # (B, QH, F + P + 1)
+        agg = a[..., :-1] @ w_in.T + (self.w_l.bias + self.w_pe.bias) + a[..., -1:] * delta
         out = torch.einsum("bqhd,hed->bqhe", agg.view(b, nq, heads, d), w_v).reshape(b, nq, d)
         h = lay.norm1(h_q + lay.w_o(out))
         return lay.norm2(h + lay.ff(h))

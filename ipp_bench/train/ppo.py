@@ -1,4 +1,5 @@
-"""The PPO phase of ``ipp-bench train``: sb3-contrib's ``MaskablePPO`` with the attention policy.
+"""The PPO phase of ``ipp-bench train``: sb3-contrib's ``MaskablePPO`` with the attention policy, its
+rollouts collected inside the environment workers (:mod:`ipp_bench.train.rollout`).
 
 SB3's callbacks do what they were written for: ``CheckpointCallback`` keeps the numbered
 checkpoints and ``learn(progress_bar=True)`` draws the bar. :class:`AfterUpdate` runs after every
@@ -167,9 +168,8 @@ def ppo(cfg: TrainArgs, run: Path, device: torch.device, state: Any, start: Path
         say: Callable[[str], None]) -> None:
     """Train (or continue from ``checkpoints/latest.zip``) to ``cfg.total_steps``; ``start``: the
     weights a new PPO phase starts from. Writes ``last.pt``, and ``export.pt`` if no validation did."""
-    from sb3_contrib import MaskablePPO
-
     from ipp_bench.policies.sb3 import AttentionPolicy
+    from ipp_bench.train.rollout import WorkerRolloutPPO as MaskablePPO  # MaskablePPO, rollouts in the workers
 
     venv = make_ppo_vec_env(cfg)
     latest = run / "checkpoints" / "latest.zip"

@@ -16,7 +16,9 @@ what crosses from them to the policy.
   (:class:`ShardedSubprocVecEnv`: each worker steps its share with a ``DummyVecEnv``), so that the
   belief updates of a step run on all cores while the main process waits; ``dummy`` steps them one
   after the other in the main process (``DummyVecEnv``). Both give the same transitions for the
-  same seeds (environment i is seeded ``seed + i`` either way): only the speed differs.
+  same seeds (environment i is seeded ``seed + i`` either way): only the speed differs. The
+  ``subproc`` workers also collect whole PPO rollouts with a copy of the policy
+  (:meth:`ShardedSubprocVecEnv.worker_rollouts`, :mod:`ipp_bench.train.rollout`).
 
 Why not SB3's ``SubprocVecEnv``: it runs one process per environment and sends each its own
 message every step. With 16 environments on 2 cores that is 32 pipe hand-overs per step, and on
@@ -26,6 +28,7 @@ spends its step writing actions to the pipes.
 
 from __future__ import annotations
 
+import bisect
 import multiprocessing as mp
 import signal
 from collections.abc import Callable, Sequence
@@ -38,6 +41,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper
 
 from ipp_bench.core._threads import available_cpus
+from ipp_bench.core.config import TIME_TOL_S
 
 VEC_ENVS = ("subproc", "dummy")
 
@@ -50,12 +54,22 @@ def roadmap_pos_encoding(env: gym.Env) -> np.ndarray:
 REWARDS = ("paper", "metric")
 
 
+def _record_time(record: Any) -> float:
+    return record.time_s
+
+
 def report_value(mission: Any) -> float:
     """Sum over the report times (within the budget) of the ROI uncertainty reduction [%] as of that
     time, counting those not reached yet at the latest value: what the episode's metric would be if
     nothing more were measured."""
-    times = mission.config.mission.report_times_in_budget
-    return float(sum(mission.metrics_at(t)["uncertainty_reduction_pct"] for t in times))
+    total = 0
+    history = mission.history
+    for t in mission.config.mission.report_times_in_budget:
+        # Mission.metrics_at(t)'s record (the last one at or before t; the records are in time order), read in
+        # place: metrics_at copies it into a dict (dataclasses.asdict), which cost more than the rest of the reward
+        i = bisect.bisect_right(history, t + TIME_TOL_S, key=_record_time)
+        total += history[max(i - 1, 0)].uncertainty_reduction_pct
+    return float(total)
 
 
 class MetricReward(gym.Wrapper):
@@ -153,6 +167,9 @@ def _shard_worker(remote, parent_remote, env_fns: CloudpickleWrapper) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     parent_remote.close()
     venv = DummyVecEnv(env_fns.var)
+    from ipp_bench.train.rollout import WorkerRollout
+
+    rollouts = WorkerRollout()
     while True:
         try:
             cmd, data = remote.recv()
@@ -161,10 +178,14 @@ def _shard_worker(remote, parent_remote, env_fns: CloudpickleWrapper) -> None:
         try:
             if cmd == "step":
                 obs, rewards, dones, infos = venv.step(data)
+                rollouts.episode_starts = dones
                 result: Any = (obs, rewards, dones, infos, venv.reset_infos)
+            elif cmd == "rollout":  # a whole rollout of this worker's environments (train.rollout)
+                result = rollouts.run(venv, data.var)
             elif cmd == "reset":
                 venv._seeds, venv._options = data
                 result = (venv.reset(), venv.reset_infos)
+                rollouts.reset(venv.num_envs)
             elif cmd == "spaces":
                 result = (venv.observation_space, venv.action_space)
             elif cmd == "close":
@@ -239,6 +260,14 @@ class ShardedSubprocVecEnv(VecEnv):
         return (self._merge_obs([r[0] for r in results]), np.concatenate([r[1] for r in results]),
                 np.concatenate([r[2] for r in results]), [info for r in results for info in r[3]])
 
+    def worker_rollouts(self, policy_spec: Any, state: dict, n_steps: int, gamma: float, seed: int) -> list[dict]:
+        """Every worker's rollout of its environments (:class:`ipp_bench.train.rollout.WorkerRollout`), in
+        environment order; ``policy_spec`` (the policy's class and constructor arguments) is needed once."""
+        for remote, shard in zip(self.remotes, self._shards, strict=True):
+            env_seeds = [rollout_seed(seed, i) for i in shard]
+            remote.send(("rollout", CloudpickleWrapper((policy_spec, state, n_steps, gamma, env_seeds))))
+        return self._recv_all(self.remotes)
+
     def close(self) -> None:
         if self.closed:
             return
@@ -306,5 +335,43 @@ def make_vec_env(make_env: Callable[[], gym.Env] | Sequence[Callable[[], gym.Env
         # fork: the workers start in well under a second (forkserver would re-import torch in each).
         venv: VecEnv = ShardedSubprocVecEnv(makers, min(n_envs, available_cpus()))
     else:
-        venv = DummyVecEnv(makers)
+        venv = RolloutDummyVecEnv(makers)
     return MasksFromObservation(venv)
+
+
+def rollout_seed(seed: int, env_index: int) -> int:
+    """The seed of environment ``env_index``'s action draws in the rollout of seed ``seed``: one stream per
+    environment, so the draws do not depend on how the environments are split among worker processes."""
+    return seed * 1000 + env_index
+
+
+class RolloutDummyVecEnv(DummyVecEnv):
+    """SB3's ``DummyVecEnv`` that also collects whole rollouts in this process, as a
+    :class:`ShardedSubprocVecEnv` worker does: the same transitions for the same seeds either way."""
+
+    def __init__(self, env_fns: list[Callable[[], gym.Env]]) -> None:
+        super().__init__(env_fns)
+        from ipp_bench.train.rollout import WorkerRollout
+
+        self._rollouts = WorkerRollout()
+        self._collecting = False
+
+    def reset(self):
+        obs = super().reset()
+        self._rollouts.reset(self.num_envs)
+        return obs
+
+    def step_wait(self):
+        obs, rewards, dones, infos = super().step_wait()
+        if not self._collecting:  # a step from outside a rollout (a rollout keeps its own)
+            self._rollouts.episode_starts = dones.copy()
+        return obs, rewards, dones, infos
+
+    def worker_rollouts(self, policy_spec: Any, state: dict, n_steps: int, gamma: float, seed: int) -> list[dict]:
+        """The rollout of every environment, as one worker of :class:`ShardedSubprocVecEnv` would collect it."""
+        env_seeds = [rollout_seed(seed, i) for i in range(self.num_envs)]
+        self._collecting = True
+        try:
+            return [self._rollouts.run(self, (policy_spec, state, n_steps, gamma, env_seeds))]
+        finally:
+            self._collecting = False

@@ -47,6 +47,16 @@ def needs(*modules: str) -> list:
     return [pytest.mark.skipif(importlib.util.find_spec(m) is None, reason=f"needs {m}") for m in modules]
 
 
+def needs_commit(rev: str) -> list:
+    """The script builds a git worktree of ``rev``: a clone without that commit (a shallow one) cannot."""
+    try:
+        known = subprocess.run(["git", "cat-file", "-e", f"{rev}^{{commit}}"], cwd=ROOT, capture_output=True,
+                               timeout=30).returncode == 0
+    except (OSError, subprocess.SubprocessError):
+        known = False
+    return [pytest.mark.skipif(not known, reason=f"needs commit {rev} in the clone (git fetch --unshallow)")]
+
+
 # (script, tiny arguments, patterns its output must match, extra markers)
 CASES = [
     ("bench_core.py", ["--sizes", "15", "--steps", "5"],
@@ -86,6 +96,13 @@ CASES = [
                          "--n-epochs", "1"],
      [rf"PPO env-steps/s .*1 thread\(s\)\): {NUMBER} over \d+ steps"],
      needs("torch", "sb3_contrib")),
+    ("bench_train.py", ["--tiny"],
+     [rf"^Grid15Train-v1 \+ Hotspots15Train-v2\s+new / old: {NUMBER}x",
+      rf"^15 x 15 new\s+main\s+{NUMBER} = forward {NUMBER}",
+      rf"^episodes: \d+, metrics max rel. diff {NUMBER}(e[-+]\d+)? \(equal",
+      rf"^training transitions: \d+, observations and rewards max rel. diff {NUMBER}(e[-+]\d+)? \(equal",
+      rf"^network grad\s*: max \|old - new\| {NUMBER}"],
+     needs("torch", "sb3_contrib") + needs_commit("4e9f32f")),
     ("bench_vision.py", ["--frames", "3", "--sizes", "128"],
      [rf"^\s*128x128\s+8m\s+1 \|(\s+{NUMBER} ms \(\s*\d+/s\) \|){{4}}", r"^\s*128x128\s+14m\s+2 \|",
       rf"projections on the same mask: \d+ cells, max \|diff\| {NUMBER}", rf"shadow map\s+0:\s+{NUMBER} ms"],

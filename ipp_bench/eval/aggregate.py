@@ -49,6 +49,9 @@ episode gives it back every time, a zero-width interval that would read as certa
 such a task gets point estimates alone, no interval, and every planner the same rank.
 
 The rule for how many episodes a board needs is :mod:`ipp_bench.eval.power`.
+
+One module on purpose (over 400 lines): the scores, the bootstrap and the estimators drawn from it
+share one resampling of the episodes, which keeps the planners paired.
 """
 
 from __future__ import annotations

@@ -68,7 +68,9 @@ class RobotView:
     table (:data:`_ENVS`), keyed by the view. Python has no private memory, so a planner that goes
     through module internals, ``gc`` or interpreter frames can find anything in its process; the
     suite's rule is that a planner reads an episode only through its view's public methods, and one
-    that reads the truth otherwise breaks the benchmark's rules.
+    that reads the truth otherwise breaks the benchmark's rules. An isolated episode
+    (``fly_episode(..., isolate=True)``, :mod:`ipp_bench.planners.isolation`) enforces it: the view's env
+    there is the robot's (:class:`~ipp_bench.planners.robot.RobotEnv`), in a process without the truth.
     """
 
     __slots__ = ("__weakref__",)

@@ -11,6 +11,10 @@ continuous planner (``kind = "continuous"``) gives a waypoint that the mission f
 ends when no neighbour is affordable (graph) or the planner returns None (continuous). A team
 task's env (:class:`~ipp_bench.envs.team.TeamGraphEnv`) goes to :func:`fly_team_episode`: one planner
 per UAV, each deciding when its UAV's leg ends.
+
+``isolate=True`` flies the planner in a process of its own, which receives what the robot measures and never
+the ground truth (:mod:`ipp_bench.planners.isolation`); the loop is the same, its planner a
+:class:`~ipp_bench.planners.isolation.RemotePlanner`, and the metrics equal the in-process ones.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import numpy as np
 
 from ..core.limits import MAX_DECISIONS
 from . import PlannerError, PlannerRegistry, make_planner, view_for, what_raised
+from .isolation import check_isolable, start_isolated
 
 
 @dataclass
@@ -62,6 +67,7 @@ class EpisodeResult:
         final: the mission's metrics at the end (:meth:`~ipp_bench.core.mission.Mission.metrics`).
         total_reward: sum of the env's rewards (graph planners; 0.0 for continuous).
         history: the mission's time-stamped metric records.
+        isolated: the planner flew in a process of its own (``isolate=True``).
     """
 
     task: str | None
@@ -74,6 +80,7 @@ class EpisodeResult:
     final: dict[str, float]
     total_reward: float = 0.0
     history: list = field(default_factory=list, repr=False)
+    isolated: bool = False
 
     @property
     def decision_time_mean_s(self) -> float:
@@ -95,15 +102,21 @@ def is_team_env(env) -> bool:
     return getattr(env, "seats", None) is not None and getattr(env, "possible_agents", None) is not None
 
 
-def start_episode(env, planner, seed: int, options: dict | None = None, registry: PlannerRegistry | None = None):
+def start_episode(env, planner, seed: int, options: dict | None = None, registry: PlannerRegistry | None = None,
+                  *, isolate: bool = False):
     """Reset ``env`` and ``planner`` for episode ``seed``, as :func:`fly_episode` does before its
     first decision; returns (planner, first observation). A spec is built from ``registry`` (default:
-    the suite's).
+    the suite's); with ``isolate`` in a process of its own, and the planner returned is its
+    :class:`~ipp_bench.planners.isolation.RemotePlanner`.
 
     A leaderboard calls it once per task and planner before its first episode, so that what an
     episode's start refuses (a budget that pays for no first move, a checkpoint whose inputs do not
     fit the task) is refused before anything is written.
     """
+    if isolate:
+        check_isolable(env, planner)
+        obs, _ = env.reset(seed=int(seed), options=options)
+        return start_isolated(env, planner, seed, registry), obs
     if is_team_env(env):
         return start_team_episode(env, planner, seed, options, registry), None
     agent = make_planner(planner, registry=registry) if isinstance(planner, str) else planner
@@ -133,7 +146,7 @@ def _decide(decide: Callable[..., Any], label: str, *args: Any) -> Any:
 def fly_episode(env, planner, seed: int, *, options: dict | None = None,
                 on_reset: Callable[[Any], None] | None = None,
                 on_decision: Callable[[Decision], None] | None = None,
-                registry: PlannerRegistry | None = None) -> EpisodeResult:
+                registry: PlannerRegistry | None = None, isolate: bool = False) -> EpisodeResult:
     """Fly one episode of ``planner`` on ``env``.
 
     Args:
@@ -148,16 +161,33 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
         on_decision: called with every :class:`Decision`, after it was carried out.
         registry: where a spec's planner is looked up (default: the suite's; a probe's own
             :class:`~ipp_bench.planners.PlannerRegistry`).
+        isolate: fly the planner (a spec) in a process of its own, which never holds the ground truth
+            (:mod:`ipp_bench.planners.isolation`): the same metrics, decision times that include the
+            exchange. Single-UAV roadmap tasks only (a team or MuJoCo task is refused, in one line).
 
     Raises:
         RuntimeError: the planner made :data:`MAX_DECISIONS` decisions without ending the episode, or
             called ``sys.exit`` in a decision.
-        PlannerError: the planner's ``reset`` raised (a ValueError it raises passes as it is).
+        PlannerError: the planner's ``reset`` raised (a ValueError it raises passes as it is); isolated,
+            also a decision that raised, and a planner process that ended.
     """
-    if is_team_env(env):
+    if is_team_env(env) and not isolate:
         return fly_team_episode(env, planner, seed, options=options, on_reset=on_reset, on_decision=on_decision,
                                 registry=registry)
-    agent, obs = start_episode(env, planner, seed, options, registry)
+    agent, obs = start_episode(env, planner, seed, options, registry, isolate=isolate)
+    try:
+        return _fly(env, planner, agent, obs, seed, on_reset, on_decision, isolate)
+    except (KeyboardInterrupt, SystemExit):
+        if isolate:
+            agent.finish(end_process=True)  # a run being stopped: its planner process with it
+        raise
+    finally:
+        if isolate:
+            agent.finish()
+
+
+def _fly(env, planner, agent, obs, seed: int, on_reset, on_decision, isolate: bool) -> EpisodeResult:
+    """The loop of :func:`fly_episode` after its start."""
     label = _label(planner, agent)
     if on_reset is not None:
         on_reset(env)
@@ -192,7 +222,7 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
     wall = time.perf_counter() - t_start
     mission = env.mission
     return EpisodeResult(getattr(env, "task_id", None), label, int(seed), mission.report(), len(times), times,
-                         wall, mission.metrics(), float(total), list(mission.history))
+                         wall, mission.metrics(), float(total), list(mission.history), isolate)
 
 
 def start_team_episode(env, planner: str | Any, seed: int, options: dict | None = None,

@@ -124,6 +124,10 @@ def build_parser() -> argparse.ArgumentParser:
     lb.add_argument("--reference", default=None, metavar="SPEC",
                     help="planner the report compares every other one with, episode by episode (default greedy, "
                          "when it runs); it must be one of the run's planners")
+    lb.add_argument("--isolate", action="store_true",
+                    help="fly every planner in a process of its own, which receives only what the robot measures and "
+                         "never the ground truth (the same numbers); on by default for planners of installed plugins "
+                         "and for every --against planner; refused for team and MuJoCo tasks")
     lb.add_argument("--against", metavar="FOLDER",
                     help="pair the --planners with a published board (e.g. baselines/v2): fly them on its tasks, "
                          "task configurations and episode seeds, and write to --out a report with its rows copied "
@@ -182,6 +186,13 @@ def cmd_tasks(args: argparse.Namespace) -> int:
     return 0
 
 
+def _rough_seconds(seconds: float) -> str:
+    """A duration for a progress line: "10 s", "2 min"."""
+    if seconds < 90:
+        return f"{max(1, round(seconds, -1 if seconds >= 20 else 0)):.0f} s"
+    return f"{round(seconds / 60):.0f} min"
+
+
 def cmd_fit_prior(args: argparse.Namespace) -> int:
     from .core import gp_fit
     from .envs import task_spec
@@ -201,11 +212,21 @@ def cmd_fit_prior(args: argparse.Namespace) -> int:
         check_fit_size(spec.config, maps)  # before any map is drawn (128 x 128: 10 GiB)
     except ValueError as err:
         return _error(str(err))
+    from .core._threads import limit_blas_threads
+
+    limit_blas_threads()  # two BLAS threads on a busy 2-core machine made the fit 10-20 times slower
     cfg = spec.config
     mean_text = "prior mean fitted" if args.fit_mean else f"prior mean {cfg.gp.prior_mean:g} fixed"
+    eta = gp_fit.estimate_seconds(cfg, maps, seed)
     print(f"{spec.id}: fitting a Matern 3/2 prior to {maps} {cfg.mission.field} maps of "
-          f"{cfg.grid.rows} x {cfg.grid.cols} cells (seed {seed}, {mean_text})", flush=True)
-    fit = gp_fit.fit_prior(cfg, maps, seed, fit_mean=args.fit_mean)
+          f"{cfg.grid.rows} x {cfg.grid.cols} cells (seed {seed}, {mean_text}) by maximising the log marginal "
+          f"likelihood from 2 starts, then scoring it on 20 held-out maps; roughly {_rough_seconds(eta)}", flush=True)
+    started = time.perf_counter()
+
+    def progress(line: str) -> None:
+        print(f"  [{time.perf_counter() - started:5.1f} s] {line}", flush=True)
+
+    fit = gp_fit.fit_prior(cfg, maps, seed, fit_mean=args.fit_mean, progress=progress)
     held = gp_fit.held_out_lml(cfg, fit.length_scale, fit.signal_variance, fit.nugget, prior_mean=fit.prior_mean)
     task_gp = cfg.gp
     held_task = gp_fit.held_out_lml(cfg, task_gp.length_scale, task_gp.signal_variance, max(task_gp.nugget, 1e-9))
@@ -456,7 +477,7 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
                 raise ValueError("--trust-unverified goes with --against FOLDER (a published board without row "
                                  "digests); a folder of one's own is checked against its run.json as it resumes")
             plan = make_plan(args.tasks, specs, args.episodes, 0 if args.seed is None else args.seed, args.quick,
-                             parse_overrides(args.env), log=lambda m: print(m, flush=True))
+                             parse_overrides(args.env), log=lambda m: print(m, flush=True), isolate=args.isolate)
             reported = list(plan.planners)
         reference = _reference(args.reference, reported)
         rerun = [_one_of(spec, plan.planners, "--rerun") for spec in args.rerun]
@@ -466,7 +487,9 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
         return _error(str(err))
     print(f"tasks: {', '.join(plan.tasks)}\nplanners: {', '.join(plan.planners)}\n"
           f"episodes: {plan.episodes} per task and planner, seed {plan.seed}"
-          + (f", env overrides {plan.env_overrides}" if plan.env_overrides else ""), flush=True)
+          + (f", env overrides {plan.env_overrides}" if plan.env_overrides else "")
+          + (f"\nisolated (each in a process of its own): {', '.join(plan.isolated)}" if plan.isolated else ""),
+          flush=True)
     command = "ipp-bench " + " ".join(shlex.quote(a) for a in _without_option(argv, "--rerun"))
     sigterm = _SigtermAsInterrupt()
     previous = signal.signal(signal.SIGTERM, sigterm)  # SIGTERM stops like Ctrl-C

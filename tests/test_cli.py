@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -135,3 +136,30 @@ def test_a_reader_that_leaves_early_gets_no_traceback():
     proc.stdout.close()  # as head does once it has its lines
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 0 and "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+def test_fit_prior_says_what_it_does_and_how_long_before_the_work_then_each_stage(capsys, monkeypatch):
+    """``fit-prior``: one line first (what, and roughly how long), then a line per stage, then the fit."""
+    from ipp_bench.core import gp_fit
+
+    fitted = gp_fit.fit_prior
+
+    def fit_prior(*args, **kwargs):
+        # nothing of the fit runs before the line that announces it
+        assert "roughly" in capsys.readouterr().out
+        return fitted(*args, **kwargs)
+
+    monkeypatch.setattr(gp_fit, "fit_prior", fit_prior)
+    assert main(["fit-prior", "--task", "Grid15Eval-v1", "--maps", "4"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("  [") and "drew 4 maps of 15 x 15 cells" in out[0]
+    assert "likelihood maximised from start 1/2" in out[1] and "evaluations in" in out[1]
+    assert "likelihood maximised from start 2/2" in out[2]
+    assert out[3].startswith("  length_scale")
+
+
+def test_fit_prior_names_a_rough_duration(capsys):
+    assert main(["fit-prior", "--task", "Grid15Eval-v1", "--maps", "4"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.startswith("ipp_bench/Grid15Eval-v1: fitting a Matern 3/2 prior to 4 regions maps")
+    assert re.search(r"roughly \d+ (s|min)$", first), first

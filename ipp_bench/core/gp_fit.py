@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import math
 import re
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +42,9 @@ from .fields import make_field
 FIT_SEED = 20_251_123  # [-] seed of the fitting maps (drawn apart from any episode's field stream)
 HELD_OUT_SEED = 91_000_001  # [-] seed of held-out maps used to compare priors
 DEFAULT_MAPS = 40
+#: likelihood evaluations of a fit, for :func:`estimate_seconds` (two L-BFGS-B starts of three
+#: parameters with numerical gradients: 108 on Grid15Eval-v1)
+TYPICAL_EVALUATIONS = 120
 # log-space bounds: length scale [m], signal variance and nugget [field units^2]
 _BOUNDS = ((math.log(0.3), math.log(200.0)), (math.log(1e-4), math.log(20.0)), (math.log(1e-7), math.log(1.0)))
 
@@ -100,27 +105,58 @@ def gls_mean(maps: np.ndarray, xy: np.ndarray, length_scale: float, signal_varia
 
 
 def minimise_lml(maps: np.ndarray, xy: np.ndarray, prior_mean: float | None,
-                 resolution: float) -> tuple[float, float, float]:
+                 resolution: float, progress: Callable[[str], None] | None = None) -> tuple[float, float, float]:
     """(length scale, signal variance, nugget) maximising the log marginal likelihood of ``maps``;
-    with ``prior_mean=None`` the mean is profiled out (:func:`gls_mean` of the result is the fitted one)."""
+    with ``prior_mean=None`` the mean is profiled out (:func:`gls_mean` of the result is the fitted one).
+    ``progress`` (if given) gets one line per optimiser start."""
     Y = np.atleast_2d(maps)
+    calls = [0]
 
     def objective(theta: np.ndarray) -> float:
+        calls[0] += 1
         value = _lml_and_mean(Y, xy, *np.exp(theta), prior_mean=prior_mean)[0]
         return -value / Y.size if math.isfinite(value) else 1e6
 
     centre = float(Y.mean()) if prior_mean is None else prior_mean
     variance = max(float(np.mean((Y - centre) ** 2)), 1e-3)
     starts = [np.log([ls, 0.9 * variance, 0.1 * variance]) for ls in (2.0 * resolution, 5.0 * resolution)]
-    best = min((minimize(objective, x0, method="L-BFGS-B", bounds=_BOUNDS) for x0 in starts),
-               key=lambda r: r.fun)
+    results = []
+    for i, x0 in enumerate(starts, 1):
+        t0, calls[0] = time.perf_counter(), 0
+        results.append(minimize(objective, x0, method="L-BFGS-B", bounds=_BOUNDS))
+        if progress is not None:
+            progress(f"likelihood maximised from start {i}/{len(starts)} (length scale {math.exp(x0[0]):.3g} m): "
+                     f"{calls[0]} evaluations in {time.perf_counter() - t0:.1f} s")
+    best = min(results, key=lambda r: r.fun)
     ls, s2, nugget = (float(v) for v in np.exp(best.x))
     return ls, s2, nugget
 
 
-def fit_prior(config: IPPConfig, maps: int = DEFAULT_MAPS, seed: int = FIT_SEED, fit_mean: bool = False) -> PriorFit:
+def estimate_seconds(config: IPPConfig, maps: int = DEFAULT_MAPS, seed: int = FIT_SEED) -> float:
+    """A rough wall time [s] of :func:`fit_prior`: one likelihood evaluation on its maps, timed here,
+    times :data:`TYPICAL_EVALUATIONS` (for the progress line before a fit)."""
+    from .limits import check_fit_size
+
+    check_fit_size(config, maps)
+    g = config.grid
+    t0 = time.perf_counter()
+    Y = sample_maps(config, maps, seed)
+    xy = cell_centres((g.rows, g.cols), g.resolution)
+    sampling = time.perf_counter() - t0
+    variance = max(float(np.var(Y)), 1e-3)
+    times = []
+    for length_scale in (2.0, 3.5, 5.0):  # the median of three, as the fit's first steps
+        t0 = time.perf_counter()
+        _lml_and_mean(Y, xy, length_scale * g.resolution, 0.9 * variance, 0.1 * variance, config.gp.prior_mean)
+        times.append(time.perf_counter() - t0)
+    return sampling + float(np.median(times)) * TYPICAL_EVALUATIONS
+
+
+def fit_prior(config: IPPConfig, maps: int = DEFAULT_MAPS, seed: int = FIT_SEED, fit_mean: bool = False,
+              progress: Callable[[str], None] | None = None) -> PriorFit:
     """Maximise the log marginal likelihood of ``maps`` draws of the task's field family; the prior
-    mean is the task's, or with ``fit_mean`` fitted too (profiled: the GLS mean).
+    mean is the task's, or with ``fit_mean`` fitted too (profiled: the GLS mean). ``progress`` (if
+    given) gets one line per stage.
 
     Raises:
         ValueError: the map is too large for the fit's n x n arrays (:func:`ipp_bench.core.limits.check_fit_size`).
@@ -131,7 +167,9 @@ def fit_prior(config: IPPConfig, maps: int = DEFAULT_MAPS, seed: int = FIT_SEED,
     g = config.grid
     xy = cell_centres((g.rows, g.cols), g.resolution)
     Y = sample_maps(config, maps, seed)
-    ls, s2, nugget = minimise_lml(Y, xy, None if fit_mean else config.gp.prior_mean, g.resolution)
+    if progress is not None:
+        progress(f"drew {maps} maps of {g.rows} x {g.cols} cells")
+    ls, s2, nugget = minimise_lml(Y, xy, None if fit_mean else config.gp.prior_mean, g.resolution, progress)
     lml, mean = _lml_and_mean(Y, xy, ls, s2, nugget, None if fit_mean else config.gp.prior_mean)
     return PriorFit(config.mission.field, (g.rows, g.cols), maps, seed, ls, s2, nugget, mean, lml / maps, fit_mean)
 

@@ -83,6 +83,7 @@ def against_plan(folder: str | Path, planners: Sequence[str], tasks: Sequence[st
 
     ``tasks``, ``episodes``, ``seed`` and ``env_overrides`` may be given only as the board has them;
     ``trust_unverified`` uses a board whose run.json records no row digests (the report says so).
+    Every planner flies isolated, in a process of its own (a submission never runs beside the truth).
 
     Raises:
         ValueError: naming what differs: an argument given otherwise than the board has it, a task
@@ -125,7 +126,8 @@ def against_plan(folder: str | Path, planners: Sequence[str], tasks: Sequence[st
         raise ValueError(f"{name}: the published board was flown on other tasks or episodes than today's suite "
                          "gives, so new rows would not pair with it:\n" + "\n".join(f"  {d}" for d in differences))
     plan = make_plan(board.tasks, planners, board.episodes, board.seed, False, board.env_overrides, log=log,
-                     check_start=check_start)
+                     check_start=check_start, isolate=True,
+                     isolate_why="every planner of an --against submission is isolated by default")
     clash = [p for p in plan.planners if p in board.planners]
     if clash:
         raise ValueError(f"{name}: {', '.join(clash)} is on the board already (its published rows join the report "

@@ -36,8 +36,9 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     parser.add_argument("--planner", default="attention",
                         help="planner spec, any registered planner, e.g. 'greedy' or 'mcts:simulations=50' "
                              "(default: attention)")
-    parser.add_argument("--seed", type=int, default=0, help="episode seed: field, texture, start, noise")
-    parser.add_argument("--out", default="demo.mp4", help="output video (.mp4, H.264)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="episode seed: field, texture, start, noise (default: %(default)s)")
+    parser.add_argument("--out", default="demo.mp4", help="output video (.mp4, H.264) (default: %(default)s)")
     parser.add_argument("--compare", default=None, metavar="PLANNER",
                         help="also fly this planner on the same seed and plot both traces (PNG)")
     parser.add_argument("--compare-out", default=None, metavar="PNG",

@@ -14,6 +14,7 @@ process dies.
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 import traceback
@@ -30,6 +31,7 @@ from .machine import describe_machine
 from .plan import EpisodeJob, Plan, report_times
 from .power import POWER_HALF_WIDTH
 from .results import ResultsStore, copy_published
+from .run_json import ISOLATED_KEY, RUN_JSON
 from .runner import run_episode
 
 
@@ -64,7 +66,7 @@ def run_job(job: EpisodeJob) -> list[dict[str, Any]]:
     try:
         if job.task_file is not None:  # a user's task: registered in this process too
             load_task(job.task_file)
-        result = run_episode(job.task, job.planner, job.seed, **dict(job.env_overrides))
+        result = run_episode(job.task, job.planner, job.seed, isolate=job.isolate, **dict(job.env_overrides))
     except Exception as err:
         raise JobError(one_line(err)) from None
     expected = report_times(job.task, dict(job.env_overrides))
@@ -78,6 +80,18 @@ def run_job(job: EpisodeJob) -> list[dict[str, Any]]:
         "episode_wall_s": result.episode_wall_s,
     }
     return [{"task": job.task, "planner": job.planner, "seed": job.seed, **r, **common} for r in result.report]
+
+
+def published_isolated(plan: Plan) -> list[str]:
+    """The planners whose rows the published board ``plan`` is paired with records as flown isolated."""
+    if plan.against is None:
+        return []
+    try:
+        meta = json.loads((Path(plan.against["folder"]) / RUN_JSON).read_text())
+    except (OSError, ValueError):  # read and verified while planning: gone since, the report just cannot say
+        return []
+    isolated = meta.get(ISOLATED_KEY) if isinstance(meta, dict) else None
+    return [str(p) for p in isolated] if isinstance(isolated, list) else []
 
 
 def one_line(err: BaseException) -> str:
@@ -227,7 +241,8 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
                                   published_csv=published,
                                   published_from=plan.against["folder"] if plan.against else None, power=power,
                                   published_unverified=bool(plan.against and plan.against.get("unverified")),
-                                  made_on=[describe_machine(m) for m in store.machines])
+                                  made_on=[describe_machine(m) for m in store.machines],
+                                  isolated=[*store.isolated, *published_isolated(plan)])
     wall = time.perf_counter() - t0
     return Summary(Path(out_dir), len(jobs), skipped, len(todo), wall, files)
 

@@ -27,6 +27,7 @@ import numpy as np
 from ..envs import tagged, task_config, task_spec
 from ..envs.registry import is_team_task, resolve_task
 from ..planners import make_config, make_planner, parse_spec, planner_names
+from ..planners.isolation import isolated_by_default
 from .fingerprint import normalised_overrides, planner_fingerprint, task_config_record
 
 SEED_SCHEME = "SeedSequence(seed).spawn(episodes)[i] -> uint31"
@@ -128,6 +129,7 @@ class EpisodeJob:
     seed: int
     env_overrides: tuple[tuple[str, Any], ...] = ()
     task_file: str | None = None  # a user's task file (not of the suite): a worker loads it first
+    isolate: bool = False  # fly the planner in a process of its own (:mod:`ipp_bench.planners.isolation`)
 
     @property
     def key(self) -> tuple[str, str, int]:
@@ -149,6 +151,8 @@ class Plan:
             (:func:`~ipp_bench.eval.fingerprint.planner_fingerprint`).
         against: the published board these planners are paired with (:func:`ipp_bench.eval.against.against_plan`):
             its ``folder``, ``planners``, ``episodes`` and ``results_sha256``; None for a board of its own.
+        isolated: the planners flown in a process of their own (:mod:`ipp_bench.planners.isolation`), in table
+            order. Not part of the fingerprint: isolation changes no number.
     """
 
     tasks: tuple[str, ...]
@@ -160,6 +164,7 @@ class Plan:
     quick: bool = False
     planner_fingerprints: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
     against: dict[str, Any] | None = None
+    isolated: tuple[str, ...] = ()
 
     def fingerprint(self) -> dict[str, Any]:
         """The arguments that decide the numbers (order-insensitive where order does not matter), as
@@ -193,7 +198,7 @@ class Plan:
         cells = {t: task_config(t, self.env_overrides).grid.n_cells for t in self.tasks}
         pairs = sorted(((t, p) for t in self.tasks for p in self.planners),
                        key=lambda tp: (-cells[tp[0]], -SLOW_PLANNERS.get(parse_spec(tp[1])[0], 0)))
-        return [EpisodeJob(t, p, s, overrides, files[t]) for s in self.seeds for t, p in pairs]
+        return [EpisodeJob(t, p, s, overrides, files[t], p in self.isolated) for s in self.seeds for t, p in pairs]
 
 
 def _freeze(value: Any) -> Any:
@@ -206,7 +211,8 @@ def _freeze(value: Any) -> Any:
 def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None = None,
               episodes: int | None = None, seed: int = 0, quick: bool = False,
               env_overrides: dict[str, Any] | None = None,
-              log: Callable[[str], None] = print, check_start: bool = True) -> Plan:
+              log: Callable[[str], None] = print, check_start: bool = True, isolate: bool = False,
+              isolate_why: str = "--isolate") -> Plan:
     """Resolve and validate the leaderboard's arguments.
 
     Args:
@@ -221,10 +227,15 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
         check_start: start the first episode of every task with every planner (reset, no
             decision; :func:`check_episode_starts`), so that what an episode's start refuses is
             refused here, before a results folder is written.
+        isolate: fly every planner in a process of its own (``--isolate``); without it, only the
+            planners of installed plugins' entry points
+            (:func:`~ipp_bench.planners.isolation.isolated_by_default`). ``isolate_why``: what asked
+            for it, as a refusal names it.
 
     Raises:
         ValueError: unknown task, planner or setting; a planner that cannot be built (its message);
-            bad episodes/seed; an override that leaves a task no report time within its budget.
+            bad episodes/seed; an override that leaves a task no report time within its budget;
+            a planner to isolate on a task that cannot be flown isolated (a team or MuJoCo task).
         ImportError: a planner asked for by name whose extra is missing.
     """
     env_overrides = dict(env_overrides or {})
@@ -259,6 +270,9 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
             fingerprints[canon] = fingerprint
         resolved.append(canon)
     _no_duplicates("planner", resolved)
+    isolated = tuple(resolved) if isolate else tuple(p for p in resolved if isolated_by_default(p))
+    check_isolation(task_ids, isolated, isolate_why if isolate else
+                    "a planner from an installed plugin's entry point is isolated by default")
     if episodes is None:
         episodes = QUICK_EPISODES if quick else DEFAULT_EPISODES
     seeds = episode_seeds(seed, episodes)
@@ -267,7 +281,26 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
     if check_start:
         check_episode_starts(task_ids, built, seeds[0], env_overrides)
     return Plan(tuple(task_ids), tuple(resolved), int(episodes), int(seed), tuple(seeds), env_overrides,
-                quick_changed, fingerprints)
+                quick_changed, fingerprints, isolated=isolated)
+
+
+def check_isolation(tasks: Sequence[str], isolated: Sequence[str], why: str) -> None:
+    """Refuse, in one line naming task and planner, a planner to isolate on a task that cannot be flown
+    isolated: a team task (one planner per UAV shares the team's belief) or a MuJoCo deployment (its clock).
+    ``why``: what isolates it (``--isolate``, a plugin, an ``--against`` submission); a planner isolated by
+    default must never run beside the truth, so the run is refused rather than flown in-process."""
+    if not isolated:
+        return
+    for t in tasks:
+        if is_team_task(t):
+            reason = "a team task (one planner per UAV shares the team's belief)"
+        elif "deployment" in task_spec(t).tags:
+            reason = "a MuJoCo deployment (its clock runs in the world's process)"
+        else:
+            continue
+        raise ValueError(f"task {t}, planner {isolated[0]}: cannot be flown isolated, in a process of its own "
+                         f"({why}): {t} is {reason}; leave that task out"
+                         + (" or drop --isolate" if why == "--isolate" else ""))
 
 
 def _check_distinct_episodes(task: str, seeds: Sequence[int], env_overrides: dict[str, Any]) -> None:
@@ -326,5 +359,5 @@ def describe_quick() -> str:
 
 
 __all__ = ["DEFAULT_EPISODES", "MAX_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES", "SPELLED_SETTINGS",
-           "EpisodeJob", "Plan", "canonical_spec", "default_planners", "check_episode_starts", "describe_quick",
-           "episode_seeds", "make_plan", "report_times", "resolve_task"]
+           "EpisodeJob", "Plan", "canonical_spec", "check_isolation", "default_planners", "check_episode_starts",
+           "describe_quick", "episode_seeds", "make_plan", "report_times", "resolve_task"]

@@ -55,7 +55,8 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
                     notes: Sequence[str] = (), published_from: str | None = None,
                     power: float | None = POWER_HALF_WIDTH, profile_png: str | None = None,
                     estimates: tuple[agg_stats.Board, agg_stats.AggregateEstimates | None] | None = None,
-                    made_on: Sequence[str] = (), published_unverified: bool = False) -> str:
+                    made_on: Sequence[str] = (), published_unverified: bool = False,
+                    isolated: Sequence[str] = ()) -> str:
     """The whole leaderboard.md.
 
     Args:
@@ -66,6 +67,9 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
         made_on: where the rows were made, one line per machine (run.json's ``machine``).
         published_unverified: the published board records no row digests and was used with
             ``--trust-unverified``: said beside the published rows.
+        isolated: the planners whose rows (some of them, in a resumed folder) flew in a process of their own
+            (run.json's ``isolated_planners``; a published board's as it recorded them): said under the
+            per-task tables. None isolated: nothing is said.
     """
     counts = sorted({table.episodes(t, p) for t in table.tasks for p in table.planners if table.episodes(t, p)})
     n_text = (" to ".join(str(c) for c in (counts[0], counts[-1])) if len(counts) > 1
@@ -114,6 +118,9 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
             "indicate the room that knowing where the ROI lies opens above the planners that cannot; they "
             "are no upper bound (a planner that looks further ahead can beat them).")
     parts += [legend, "", markdown_table(table)]
+    flown = [p for p in table.planners if p in set(isolated)]
+    if flown:
+        parts += [isolated_note(flown, table.published), ""]
     ref = resolve_reference(reference, table.planners) if reference else None
     if ref is not None and len(table.planners) > 1:
         for key, label in REDUCTIONS:
@@ -166,12 +173,22 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
     return "\n".join(parts)
 
 
+def isolated_note(planners: Sequence[str], published: Sequence[str] = ()) -> str:
+    """The line under the per-task tables naming the planners flown isolated."""
+    names = ", ".join(f"`{p}`" + (" (published)" if p in published else "") for p in planners)
+    return (f"Flown isolated: {names}: each in a process of its own that receives only what the robot measures, "
+            "never the ground truth (`--isolate`; on by default for plugins' planners and `--against` submissions; "
+            "the same numbers as in-process). run.json's `isolated_planners` names a planner when any of its "
+            "episodes here flew so.")
+
+
 def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[str] | None = None,
                  planners: Sequence[str] | None = None, command: str | None = None,
                  quick: bool = False, reference: str | None = DEFAULT_REFERENCE,
                  log: Callable[[str], None] | None = None, published_csv: str | Path | None = None,
                  published_from: str | None = None, power: float | None = POWER_HALF_WIDTH,
-                 made_on: Sequence[str] = (), published_unverified: bool = False) -> list[Path]:
+                 made_on: Sequence[str] = (), published_unverified: bool = False,
+                 isolated: Sequence[str] = ()) -> list[Path]:
     """Write ``leaderboard.md``, ``performance_profile.png``, ``curves_<task>.png`` and
     ``runtime_per_decision.png`` from a results.csv.
 
@@ -184,6 +201,7 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
         power: the power rule's half-width target in points (None: no power section).
         made_on: where the rows were made (one line per machine), said in one line at the top.
         published_unverified: the published rows were used unverified (``--trust-unverified``).
+        isolated: the planners (this run's or the published board's) whose rows flew isolated.
 
     Returns:
         The paths written.
@@ -221,9 +239,10 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
             log(f"note: {note}")
     md = out_dir / "leaderboard.md"
     text = markdown_report(table, command, quick, [p.name for p in written if p.name != PROFILE_PNG], reference,
-                           notes, published_from, power, profile_png, estimates, made_on, published_unverified)
+                           notes, published_from, power, profile_png, estimates, made_on, published_unverified,
+                           isolated)
     write_atomically(md, lambda tmp: tmp.write_text(text))
     return [md, *written]
 
 
-__all__ = ["markdown_report", "write_report"]
+__all__ = ["isolated_note", "markdown_report", "write_report"]

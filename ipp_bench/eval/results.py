@@ -23,8 +23,10 @@ The folder holds:
     not a finite number, a task, planner, seed or report time that is not this run's, a repeated
     row, or a row whose digest run.json does not record (edited by hand; only the rows of the one
     append a kill cut off from run.json's update may lack one). A run.json without ``rows`` gets
-    the other checks alone. When every episode is in, the file is rewritten sorted (task, planner,
-    seed, time), so its content does not depend on the order in which workers finished.
+    the other checks alone. ``isolated_planners``: the planners of which at least one episode here
+    flew in a process of its own (:data:`~ipp_bench.eval.run_json.ISOLATED_KEY`). When every episode
+    is in, the file is rewritten sorted (task, planner, seed, time), so its content does not depend
+    on the order in which workers finished.
 ``published_results.csv``
     only in a folder paired with a published board (``--against``): a copy of that board's
     results.csv (whose sha256 run.json records), so the report is made from this folder alone.
@@ -59,7 +61,7 @@ from .results_csv import (
     max_results_bytes,
     row_digest,
 )
-from .run_json import ROWS_ADDED_KEY, RUN_JSON, ResultsMismatchError, new_meta, resumed_meta
+from .run_json import ISOLATED_KEY, ROWS_ADDED_KEY, RUN_JSON, ResultsMismatchError, new_meta, resumed_meta
 
 #: the copy of a published board's results.csv in a folder paired with it (``--against``)
 PUBLISHED_CSV = "published_results.csv"
@@ -321,6 +323,9 @@ class ResultsStore:
         recorded = [m for m in [meta.get("machine"), *meta.get("other_machines", [])] if isinstance(m, dict)]
         if not any(same_machine(m, here) for m in recorded):
             meta["other_machines"] = [*meta.get("other_machines", []), here]
+        isolated = set(meta.get(ISOLATED_KEY) or [])
+        if key[1] in self.plan.isolated and key[1] not in isolated:  # the planner flew isolated in this folder
+            meta[ISOLATED_KEY] = sorted(isolated | {key[1]})
         self._write_meta(meta)
 
     def finalize(self) -> None:
@@ -343,6 +348,11 @@ class ResultsStore:
         """Where the rows were made (run.json's ``machine`` and ``other_machines``): [] when not recorded."""
         meta = self._stored_meta or {}
         return [m for m in [meta.get("machine"), *meta.get("other_machines", [])] if isinstance(m, dict)]
+
+    @property
+    def isolated(self) -> list[str]:
+        """The planners of which at least one episode here flew isolated (run.json's ``isolated_planners``)."""
+        return list((self._stored_meta or {}).get(ISOLATED_KEY) or [])
 
     @property
     def quick(self) -> bool:

@@ -30,6 +30,11 @@ FORMAT_VERSION = 1
 ROWS_ADDED_KEY = "added"
 #: fingerprint keys that a folder may lack: filled in (with a note) instead of refusing the folder
 ADDED_FINGERPRINT_KEYS = ("planner_fingerprints",)
+#: the planners of which at least one episode in the folder flew isolated, in a process of their own
+#: (``--isolate``, a plugin, an ``--against`` submission); beside the fingerprint, not in it: isolation changes no
+#: number, so a folder flown without it resumes with it and vice versa (the list then names a planner whose
+#: episodes flew isolated only in part)
+ISOLATED_KEY = "isolated_planners"
 
 
 class ResultsMismatchError(ValueError):
@@ -117,6 +122,9 @@ def resumed_meta(stored_meta: dict[str, Any], stored: dict[str, Any], plan: Plan
     if "other_machines" in stored_meta:
         meta["other_machines"] = stored_meta["other_machines"]
     meta["quick"] = bool(stored_meta.get("quick", plan.quick))  # the label stays the folder's
+    isolated = [p for p in stored_meta.get(ISOLATED_KEY) or [] if p not in rerun]  # --rerun drops their rows
+    if isolated:
+        meta[ISOLATED_KEY] = isolated
     return meta, notes
 
 
@@ -135,4 +143,5 @@ def _refuse_unfingerprinted_rows(csv_path: Path, fingerprints: dict[str, dict[st
             f"{csv_path.name} to fly them again with today's, or pass a new --out DIR")
 
 
-__all__ = ["FORMAT_VERSION", "ROWS_ADDED_KEY", "RUN_JSON", "ResultsMismatchError", "new_meta", "resumed_meta"]
+__all__ = ["FORMAT_VERSION", "ISOLATED_KEY", "ROWS_ADDED_KEY", "RUN_JSON", "ResultsMismatchError", "new_meta",
+           "resumed_meta"]

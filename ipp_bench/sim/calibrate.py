@@ -392,11 +392,14 @@ def write_task_file(path: str, sensor: dict[str, float], command: str, nugget: f
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m ipp_bench.sim.calibrate", description=__doc__.split("\n\n")[0])
-    p.add_argument("--task", default="ipp_bench/MuJoCoWeed15-v1")
+    p.add_argument("--task", default="ipp_bench/MuJoCoWeed15-v1",
+                   help="MuJoCo deployment task (id or task file) whose camera model is calibrated "
+                        "(default ipp_bench/MuJoCoWeed15-v1)")
     p.add_argument("--fields", type=int, default=12, help="calibration fields of the hovers (default 12)")
     p.add_argument("--positions", type=int, default=6, help="hover positions per field and altitude (default 6)")
-    p.add_argument("--altitudes", default="6,8,10,12,14,16", help="altitudes [m], comma-separated")
-    p.add_argument("--factors", default="1,2", help="resolution factors, comma-separated")
+    p.add_argument("--altitudes", default="6,8,10,12,14,16",
+                   help="hover altitudes [m], comma-separated (default 6,8,10,12,14,16)")
+    p.add_argument("--factors", default="1,2", help="resolution factors, comma-separated (default 1,2)")
     p.add_argument("--hover-s", type=float, default=1.0, help="hover before each read-out [s] (default 1)")
     p.add_argument("--missions", type=int, default=4,
                    help=f"calibration missions per planner ({', '.join(CALIBRATION_PLANNERS)}) for the error "
@@ -409,7 +412,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="fit the error model with this correlation of neighbouring cells' persistent errors "
                         "(default: the task's persistent_neighbour_corr; it is measured, never fitted, and not "
                         "written)")
-    p.add_argument("--write", action="store_true", help="write the fitted constants into the task file")
+    p.add_argument("--write", action="store_true",
+                   help="write the fitted constants into the task file (default: print them only)")
     args = p.parse_args(argv)
     if args.fields < 1 or args.positions < 1 or args.missions < 1 or args.evaluations < 1:
         p.error("--fields, --positions, --missions and --evaluations must be >= 1")

@@ -32,7 +32,7 @@ from typing import Any
 
 import torch
 
-from ipp_bench.core._threads import available_cpus, keep_freed_memory
+from ipp_bench.core._threads import keep_freed_memory
 from ipp_bench.core.data import OutputWriteError, check_output_dir
 from ipp_bench.train.args import (
     RESUMABLE,
@@ -78,13 +78,16 @@ class RunState:
 
 
 def set_threads(n: int = 0) -> int:
-    """Torch intra-op threads: ``n``, or half the CPUs available to this process (at least 1).
+    """Torch intra-op threads: ``n``, or half the CPUs available to this process (at least 1; within
+    its cgroup's CPU quota, :func:`~ipp_bench.train.vec.worker_cpus`).
 
     Measured on a 2-core machine while other jobs ran: PPO made 145 env-steps/s with one torch
     thread and 7 with two, and a 450-node forward pass took 1.5 ms with one thread and 200 ms with
     two (OpenMP threads waiting on each other whenever one is descheduled).
     """
-    n = n or max(1, available_cpus() // 2)
+    from ipp_bench.train.vec import worker_cpus
+
+    n = n or max(1, worker_cpus() // 2)
     torch.set_num_threads(n)
     return n
 

@@ -127,21 +127,27 @@ def validate_checkpoints(paths: list[str], tasks: list[str], episodes: int, json
     except ValueError as err:
         print(f"ipp-bench train: error: --val-task: {err}", file=sys.stderr)
         return 2
-    greedy = {t: evaluate_planner("greedy", t, episodes) for t in tasks}
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        # Every checkpoint is read (and an unsafe or foreign archive refused) before any episode is flown.
+        nets = []
         for path in paths:
             try:
-                pt = export_zip(path, Path(tmp) / f"{Path(path).stem}.pt") if path.endswith(".zip") else path
-                net, meta = load_checkpoint(pt)
+                out = Path(tmp) / f"{len(nets)}_{Path(path).stem}.pt"
+                pt = export_zip(path, out) if path.endswith(".zip") else path
+                nets.append(load_checkpoint(pt))
             except CheckpointError as err:
                 print(f"ipp-bench train: error: --validate: {err}", file=sys.stderr)
                 return 2
-            figures = {t: evaluate_net(net, t, episodes) for t in tasks}
-            minus = [figures[t]["val/score"] - greedy[t]["val/score"] for t in tasks]
-            rows.append({"checkpoint": path, "ppo_steps": meta.get("ppo_steps"), "figures": figures,
-                         "mean_minus_greedy": float(np.mean(minus))})
-            print(f"{path}: mean minus greedy {rows[-1]['mean_minus_greedy']:+.2f}", file=sys.stderr, flush=True)
+    print(f"validating {len(paths)} checkpoint(s) and greedy on {len(tasks)} task(s), {episodes} episodes each",
+          file=sys.stderr, flush=True)
+    greedy = {t: evaluate_planner("greedy", t, episodes) for t in tasks}
+    for path, (net, meta) in zip(paths, nets):
+        figures = {t: evaluate_net(net, t, episodes) for t in tasks}
+        minus = [figures[t]["val/score"] - greedy[t]["val/score"] for t in tasks]
+        rows.append({"checkpoint": path, "ppo_steps": meta.get("ppo_steps"), "figures": figures,
+                     "mean_minus_greedy": float(np.mean(minus))})
+        print(f"{path}: mean minus greedy {rows[-1]['mean_minus_greedy']:+.2f}", file=sys.stderr, flush=True)
     times = [k for k in greedy[tasks[0]] if k.startswith("val/unc_red_")]
     print("| checkpoint | " + " | ".join(task_key(t) for t in tasks) + " | mean score minus greedy |")
     print("|---" * (len(tasks) + 2) + "|")

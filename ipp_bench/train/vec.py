@@ -13,7 +13,8 @@ what crosses from them to the policy.
   every worker process; the observation already carries the same mask, so it is answered from
   the last observation.
 - :func:`make_vec_env`: ``subproc`` splits the environments over one worker process per CPU
-  (:class:`ShardedSubprocVecEnv`: each worker steps its share with a ``DummyVecEnv``), so that the
+  (:func:`worker_cpus`: the CPUs this process may run on, within its cgroup's CPU quota;
+  :class:`ShardedSubprocVecEnv`: each worker steps its share with a ``DummyVecEnv``), so that the
   belief updates of a step run on all cores while the main process waits; ``dummy`` steps them one
   after the other in the main process (``DummyVecEnv``). Both give the same transitions for the
   same seeds (environment i is seeded ``seed + i`` either way): only the speed differs. The
@@ -29,9 +30,11 @@ spends its step writing actions to the pipes.
 from __future__ import annotations
 
 import bisect
+import math
 import multiprocessing as mp
 import signal
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -44,6 +47,35 @@ from ipp_bench.core._threads import available_cpus
 from ipp_bench.core.config import TIME_TOL_S
 
 VEC_ENVS = ("subproc", "dummy")
+#: where the cgroup CPU quota is read (v2 ``cpu.max``, v1 ``cpu/cpu.cfs_quota_us``)
+CGROUP_ROOT = "/sys/fs/cgroup"
+
+
+def cgroup_cpu_quota(root: str | None = None) -> int | None:
+    """The CPUs this process's cgroup may use (its CPU quota, rounded up), or None without a quota.
+
+    A container limited to 2 CPUs on a larger host (``docker --cpus 2``) still sees every host CPU
+    in its affinity mask; only the quota tells how many it may keep busy."""
+    base = Path(root or CGROUP_ROOT)
+    try:
+        quota, period = (base / "cpu.max").read_text().split()[:2]
+        if quota == "max":
+            return None
+        return max(1, math.ceil(int(quota) / int(period)))
+    except (OSError, ValueError):
+        pass
+    try:
+        quota_us = int((base / "cpu" / "cpu.cfs_quota_us").read_text())
+        period_us = int((base / "cpu" / "cpu.cfs_period_us").read_text())
+    except (OSError, ValueError):
+        return None
+    return max(1, math.ceil(quota_us / period_us)) if quota_us > 0 and period_us > 0 else None
+
+
+def worker_cpus() -> int:
+    """The CPUs the training may keep busy: those this process may run on, within its cgroup's quota."""
+    quota = cgroup_cpu_quota()
+    return min(available_cpus(), quota) if quota else available_cpus()
 
 
 def roadmap_pos_encoding(env: gym.Env) -> np.ndarray:
@@ -333,7 +365,7 @@ def make_vec_env(make_env: Callable[[], gym.Env] | Sequence[Callable[[], gym.Env
     makers = [dropping(f) for f in factories]
     if kind == "subproc":
         # fork: the workers start in well under a second (forkserver would re-import torch in each).
-        venv: VecEnv = ShardedSubprocVecEnv(makers, min(n_envs, available_cpus()))
+        venv: VecEnv = ShardedSubprocVecEnv(makers, min(n_envs, worker_cpus()))
     else:
         venv = RolloutDummyVecEnv(makers)
     return MasksFromObservation(venv)

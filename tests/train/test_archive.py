@@ -82,3 +82,34 @@ def test_loading_for_resume_substitutes_every_pickled_entry(archive, tmp_path, p
     with pytest.raises(CheckpointError, match=r"pickled entries this package never writes \(evil\)"):
         load_objects(path, known)
     assert not marker.exists()
+
+
+def test_validate_refuses_a_crafted_archive_in_one_line_before_any_episode(tmp_path, capsys, monkeypatch, poison):
+    """``--validate evil.zip``: the archive is checked first, so a crafted one is refused at once (in one
+    line, its payload never run), before greedy's reference or any env is built."""
+    import io
+    import json
+    import zipfile
+
+    from ipp_bench.train import validation
+    from ipp_bench.train.command import main
+
+    evil = tmp_path / "evil.zip"
+    blob = io.BytesIO()
+    torch.save({}, blob)
+    with zipfile.ZipFile(evil, "w") as zf:
+        zf.writestr("data", json.dumps({"policy_class": {":type:": "<class 'abc.ABCMeta'>", "__module__": "evil"}}))
+        zf.writestr("policy.pth", blob.getvalue())
+    marker = tmp_path / "ran"
+    poison(evil, "policy_class", marker)
+
+    def built(*_args, **_kwargs):
+        raise AssertionError("an env or episode was built before the archive was checked")
+
+    for name in ("make_env", "evaluate_planner", "evaluate_net", "_fly"):
+        monkeypatch.setattr(validation, name, built)
+    assert main(["--validate", str(evil), "--val-task", "ipp_bench/Grid15-v0", "--eval-episodes", "1"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1
+    assert "--validate" in err and "not ipp_bench's AttentionPolicy (module 'evil')" in err
+    assert not marker.exists()

@@ -182,3 +182,53 @@ def test_metric_reward_sums_to_the_episodes_report_mean():
     want = np.mean([row["uncertainty_reduction_pct"] for row in report]) / 10 - at_start
     assert 0 < at_start < 1 and total == pytest.approx(want, rel=1e-9)
     assert want > 1  # the test cannot pass on an empty episode
+
+
+@pytest.mark.parametrize("layout", ["v2", "v1"])
+def test_a_run_starts_no_more_workers_than_its_cpu_quota(tmp_path, monkeypatch, layout):
+    """The README's tiny run (16 environments by default) in a container limited to 2 CPUs whose
+    affinity mask shows the host's 16: two worker processes, not 16."""
+    import multiprocessing as mp
+    import os
+
+    from ipp_bench.train import vec
+    from ipp_bench.train.args import TrainArgs
+
+    if layout == "v2":
+        (tmp_path / "cpu.max").write_text("200000 100000\n")
+    else:
+        (tmp_path / "cpu").mkdir()
+        (tmp_path / "cpu" / "cpu.cfs_quota_us").write_text("150000\n")
+        (tmp_path / "cpu" / "cpu.cfs_period_us").write_text("100000\n")
+    monkeypatch.setattr(vec, "CGROUP_ROOT", str(tmp_path), raising=False)
+    monkeypatch.setattr(vec, "available_cpus", lambda: 16)
+    before = set(mp.active_children())
+    venv = make_vec_env(_make, TrainArgs().n_envs, "subproc")
+    try:
+        started = set(mp.active_children()) - before
+        assert TrainArgs().n_envs == 16
+        assert len(started) == len(venv.venv.processes) == 2
+        assert venv.num_envs == 16
+    finally:
+        venv.close()
+    # without a quota, the affinity mask decides, and never more workers than CPUs
+    assert vec.cgroup_cpu_quota(str(tmp_path / "none")) is None
+    monkeypatch.setattr(vec, "CGROUP_ROOT", str(tmp_path / "none"))
+    monkeypatch.setattr(vec, "available_cpus", lambda: len(os.sched_getaffinity(0)))
+    venv = make_vec_env(_make, 16, "subproc")
+    try:
+        assert len(set(mp.active_children()) - before) <= len(os.sched_getaffinity(0))
+    finally:
+        venv.close()
+
+
+def test_no_cpu_quota_reads_as_none(tmp_path):
+    from ipp_bench.train.vec import cgroup_cpu_quota
+
+    (tmp_path / "cpu.max").write_text("max 100000\n")
+    assert cgroup_cpu_quota(str(tmp_path)) is None
+    (tmp_path / "cpu.max").unlink()
+    (tmp_path / "cpu").mkdir()
+    (tmp_path / "cpu" / "cpu.cfs_quota_us").write_text("-1\n")
+    (tmp_path / "cpu" / "cpu.cfs_period_us").write_text("100000\n")
+    assert cgroup_cpu_quota(str(tmp_path)) is None

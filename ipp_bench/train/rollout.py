@@ -16,18 +16,21 @@ terminal observation, as SB3 does), episode start, value, log-probability and ac
 step in environment order; the callbacks see every step (``on_step``), the episode statistics every
 ``info``. Only where the random actions are drawn differs: each environment has its own torch
 generator per rollout (seeded from the run's seed, the rollout and the environment's index,
-:func:`~ipp_bench.train.vec.rollout_seed`), not the main process's, so the draws are the same whether
+:func:`rollout_seed`), not the main process's, so the draws are the same whether
 the environments run in one process (``--vec-env dummy``) or are split among any number of workers.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 from sb3_contrib import MaskablePPO
 from stable_baselines3.common.utils import obs_as_tensor
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 
 class WorkerRollout:
@@ -152,3 +155,39 @@ class WorkerRolloutPPO(MaskablePPO):
         rollout_buffer.compute_returns_and_advantage(last_values=last_values, dones=self._last_episode_starts)
         callback.on_rollout_end()
         return True
+
+
+def rollout_seed(seed: int, env_index: int) -> int:
+    """The seed of environment ``env_index``'s action draws in the rollout of seed ``seed``: one stream per
+    environment, so the draws do not depend on how the environments are split among worker processes."""
+    return seed * 1000 + env_index
+
+
+class RolloutDummyVecEnv(DummyVecEnv):
+    """SB3's ``DummyVecEnv`` that also collects whole rollouts in this process, as a
+    :class:`ShardedSubprocVecEnv` worker does: the same transitions for the same seeds either way."""
+
+    def __init__(self, env_fns: list[Callable[[], gym.Env]]) -> None:
+        super().__init__(env_fns)
+        self._rollouts = WorkerRollout()
+        self._collecting = False
+
+    def reset(self):
+        obs = super().reset()
+        self._rollouts.reset(self.num_envs)
+        return obs
+
+    def step_wait(self):
+        obs, rewards, dones, infos = super().step_wait()
+        if not self._collecting:  # a step from outside a rollout (a rollout keeps its own)
+            self._rollouts.episode_starts = dones.copy()
+        return obs, rewards, dones, infos
+
+    def worker_rollouts(self, policy_spec: Any, state: dict, n_steps: int, gamma: float, seed: int) -> list[dict]:
+        """The rollout of every environment, as one worker of :class:`ShardedSubprocVecEnv` would collect it."""
+        env_seeds = [rollout_seed(seed, i) for i in range(self.num_envs)]
+        self._collecting = True
+        try:
+            return [self._rollouts.run(self, (policy_spec, state, n_steps, gamma, env_seeds))]
+        finally:
+            self._collecting = False

@@ -295,6 +295,8 @@ class ShardedSubprocVecEnv(VecEnv):
     def worker_rollouts(self, policy_spec: Any, state: dict, n_steps: int, gamma: float, seed: int) -> list[dict]:
         """Every worker's rollout of its environments (:class:`ipp_bench.train.rollout.WorkerRollout`), in
         environment order; ``policy_spec`` (the policy's class and constructor arguments) is needed once."""
+        from ipp_bench.train.rollout import rollout_seed
+
         for remote, shard in zip(self.remotes, self._shards, strict=True):
             env_seeds = [rollout_seed(seed, i) for i in shard]
             remote.send(("rollout", CloudpickleWrapper((policy_spec, state, n_steps, gamma, env_seeds))))
@@ -367,43 +369,7 @@ def make_vec_env(make_env: Callable[[], gym.Env] | Sequence[Callable[[], gym.Env
         # fork: the workers start in well under a second (forkserver would re-import torch in each).
         venv: VecEnv = ShardedSubprocVecEnv(makers, min(n_envs, worker_cpus()))
     else:
+        from ipp_bench.train.rollout import RolloutDummyVecEnv
+
         venv = RolloutDummyVecEnv(makers)
     return MasksFromObservation(venv)
-
-
-def rollout_seed(seed: int, env_index: int) -> int:
-    """The seed of environment ``env_index``'s action draws in the rollout of seed ``seed``: one stream per
-    environment, so the draws do not depend on how the environments are split among worker processes."""
-    return seed * 1000 + env_index
-
-
-class RolloutDummyVecEnv(DummyVecEnv):
-    """SB3's ``DummyVecEnv`` that also collects whole rollouts in this process, as a
-    :class:`ShardedSubprocVecEnv` worker does: the same transitions for the same seeds either way."""
-
-    def __init__(self, env_fns: list[Callable[[], gym.Env]]) -> None:
-        super().__init__(env_fns)
-        from ipp_bench.train.rollout import WorkerRollout
-
-        self._rollouts = WorkerRollout()
-        self._collecting = False
-
-    def reset(self):
-        obs = super().reset()
-        self._rollouts.reset(self.num_envs)
-        return obs
-
-    def step_wait(self):
-        obs, rewards, dones, infos = super().step_wait()
-        if not self._collecting:  # a step from outside a rollout (a rollout keeps its own)
-            self._rollouts.episode_starts = dones.copy()
-        return obs, rewards, dones, infos
-
-    def worker_rollouts(self, policy_spec: Any, state: dict, n_steps: int, gamma: float, seed: int) -> list[dict]:
-        """The rollout of every environment, as one worker of :class:`ShardedSubprocVecEnv` would collect it."""
-        env_seeds = [rollout_seed(seed, i) for i in range(self.num_envs)]
-        self._collecting = True
-        try:
-            return [self._rollouts.run(self, (policy_spec, state, n_steps, gamma, env_seeds))]
-        finally:
-            self._collecting = False

@@ -1,4 +1,5 @@
 import os
+import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -18,6 +19,53 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.get_closest_marker("slow") is not None and item.get_closest_marker("timeout") is None:
             item.add_marker(pytest.mark.timeout(SLOW_TEST_TIMEOUT_S))
+
+
+#: a plugin's module: a planner ``first`` that always takes the first affordable neighbour
+FIRST_PLANNER = """
+from dataclasses import dataclass
+
+import numpy as np
+
+from ipp_bench.planners.base import GraphPlanner
+
+
+@dataclass(frozen=True)
+class FirstConfig:
+    \"\"\"No settings: always the first affordable neighbour.\"\"\"
+
+
+class FirstPlanner(GraphPlanner):
+    name = "first"
+    Config = FirstConfig
+
+    def act(self, obs):
+        return int(np.flatnonzero(obs["action_mask"])[0])
+"""
+
+
+@pytest.fixture
+def plugin_site(tmp_path, monkeypatch):
+    """``install(package)``: "installs" :data:`FIRST_PLANNER` as ``package`` the way pip leaves a plugin on disk
+    (the module and a ``.dist-info`` whose entry point names it ``theirs``) in a folder put on sys.path;
+    returns that ``.dist-info`` folder. The module is forgotten again after the test."""
+    site = tmp_path / "site"
+    installed = []
+
+    def install(package: str):
+        (site / package).mkdir(parents=True)
+        (site / package / "__init__.py").write_text(FIRST_PLANNER)
+        info = site / f"{package}-0.1.dist-info"
+        info.mkdir()
+        (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {package.replace('_', '-')}\nVersion: 0.1\n")
+        (info / "entry_points.txt").write_text(f"[ipp_bench.planners]\ntheirs = {package}:FirstPlanner\n")
+        monkeypatch.syspath_prepend(str(site))
+        installed.append(package)
+        return info
+
+    yield install
+    for package in installed:
+        monkeypatch.delitem(sys.modules, package, raising=False)
 
 
 @pytest.fixture

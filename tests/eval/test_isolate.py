@@ -4,7 +4,6 @@ planners and ``--against`` submissions), the same numbers, and run.json and the 
 from __future__ import annotations
 
 import json
-import textwrap
 
 import pytest
 from lb_helpers import assert_same_results, results
@@ -80,45 +79,15 @@ def test_a_team_task_with_isolate_is_refused_in_one_line_before_any_work(tmp_pat
     assert not out.exists()
 
 
-PLUGIN = '''
-from dataclasses import dataclass
-
-import numpy as np
-
-from ipp_bench.planners.base import GraphPlanner
-
-
-@dataclass(frozen=True)
-class FirstConfig:
-    """No settings: always the first affordable neighbour."""
-
-
-class FirstPlanner(GraphPlanner):
-    name = "first"
-    Config = FirstConfig
-
-    def act(self, obs):
-        return int(np.flatnonzero(obs["action_mask"])[0])
-'''
-
-
 @pytest.fixture
-def plugin(tmp_path, monkeypatch):
+def plugin(plugin_site, monkeypatch):
     """A plugin ``theirs`` "installed" on sys.path (a module and its .dist-info), on a fresh suite registry."""
-    site = tmp_path / "site"
-    (site / "their_isolated").mkdir(parents=True)
-    (site / "their_isolated" / "__init__.py").write_text(textwrap.dedent(PLUGIN))
-    info = site / "their_isolated-0.1.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: their-isolated\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text("[ipp_bench.planners]\ntheirs = their_isolated:FirstPlanner\n")
-    monkeypatch.syspath_prepend(str(site))
+    plugin_site("their_isolated")
     registry = planners.PlannerRegistry(planners.BUILT_IN, plugins=True)
     monkeypatch.setattr(planners, "REGISTRY", registry)
     monkeypatch.setattr(isolation, "REGISTRY", registry)  # isolation holds its own reference to the suite's
     yield
     isolation.close_workers()
-    monkeypatch.delitem(__import__("sys").modules, "their_isolated", raising=False)
 
 
 def test_a_plugins_planner_is_isolated_by_default(plugin, tmp_path):

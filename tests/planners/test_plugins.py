@@ -24,41 +24,10 @@ from ipp_bench.planners.greedy import GreedyPlanner
 
 TASK = "ipp_bench/Grid15Eval-v1"
 
-PLANNER = '''
-from dataclasses import dataclass
-
-import numpy as np
-
-from ipp_bench.planners.base import GraphPlanner
-
-
-@dataclass(frozen=True)
-class FirstConfig:
-    """No settings: always the first affordable neighbour."""
-
-
-class FirstPlanner(GraphPlanner):
-    name = "first"
-    Config = FirstConfig
-
-    def act(self, obs):
-        return int(np.flatnonzero(obs["action_mask"])[0])
-'''
-
-
 @pytest.fixture
-def installed_plugin(tmp_path, monkeypatch):
-    site = tmp_path / "site"
-    (site / "their_planners").mkdir(parents=True)
-    (site / "their_planners" / "__init__.py").write_text(textwrap.dedent(PLANNER))
-    info = site / "their_planners-0.1.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: their-planners\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text("[ipp_bench.planners]\ntheirs = their_planners:FirstPlanner\n")
-    monkeypatch.syspath_prepend(str(site))
+def installed_plugin(plugin_site, monkeypatch):
+    plugin_site("their_planners")
     monkeypatch.setattr(planners, "REGISTRY", planners.PlannerRegistry(planners.BUILT_IN, plugins=True))
-    yield
-    monkeypatch.delitem(__import__("sys").modules, "their_planners", raising=False)
 
 
 def test_an_installed_plugin_is_found_by_name_and_runs(installed_plugin, tmp_path, capsys):

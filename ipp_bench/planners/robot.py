@@ -177,12 +177,9 @@ class Robot:
         config, task_id, _, clock_cls, constants = self.task
         mission = RobotMission(config, self.observer.sensor, clock_cls(**constants), unpack(model), pose)
         env = RobotEnv(config, task_id, self.observer, mission)
-        try:
-            agent = make_planner(self.spec, registry=self.registry)
-        except (ValueError, ImportError) as err:
-            return _error(err)
-        except (Exception, SystemExit) as err:
-            return _error(PlannerError(f"planner {self.spec!r}: building it raised {what_raised(err)}"))
+        agent = self._build()
+        if isinstance(agent, dict):  # the one-line error of a planner that cannot be built
+            return agent
         try:
             view = view_for(agent, env)
         except ValueError as err:
@@ -193,6 +190,15 @@ class Robot:
                                          "suite's own reference planners"))
             mission.eval_roi = np.asarray(roi, dtype=bool)
         return self._reset(agent, env, view, seed)
+
+    def _build(self) -> Any:
+        """The planner of this process's spec, or the error reply saying why it cannot be built."""
+        try:
+            return make_planner(self.spec, registry=self.registry)
+        except (ValueError, ImportError) as err:
+            return _error(err)
+        except (Exception, SystemExit) as err:
+            return _error(PlannerError(f"planner {self.spec!r}: building it raised {what_raised(err)}"))
 
     def _reset(self, agent, env: RobotEnv, view, seed: int) -> dict:
         try:
@@ -237,12 +243,9 @@ class Robot:
 
     def describe(self) -> dict:
         """The planner's name, kind and settings, built here (a leaderboard's plan never imports its code)."""
-        try:
-            agent = make_planner(self.spec, registry=self.registry)
-        except (ValueError, ImportError) as err:
-            return _error(err)
-        except (Exception, SystemExit) as err:
-            return _error(PlannerError(f"planner {self.spec!r}: building it raised {what_raised(err)}"))
+        agent = self._build()
+        if isinstance(agent, dict):  # the one-line error of a planner that cannot be built
+            return agent
         settings = agent.settings if dataclasses.is_dataclass(getattr(agent, "settings", None)) else None
         fingerprint = getattr(agent, "fingerprint", None)
         return {"name": str(agent.name), "kind": str(agent.kind), "team": bool(getattr(agent, "team", False)),

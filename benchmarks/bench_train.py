@@ -23,7 +23,8 @@ workers' ``DummyVecEnv.step_wait`` and ``multiprocessing.connection.Connection``
 (installed before the worker processes fork, so that they inherit them). Per env-step (one transition
 of one environment), main process: policy forward (rollout), PPO update, ``latest.zip``, transfer
 (pickling the actions, unpickling the results), waiting (blocked on the workers' pipes) and the rest;
-worker processes (summed over workers, CPU-seconds per env-step): env step, sending results, idle.
+worker processes (summed over workers, CPU-seconds per env-step): env step, forward, the PPO update's
+second halves (``train.update``), sending results, idle.
 
 Equality (``--skip-equality`` skips it): both trees fly the same episodes (greedy and the attention
 planner on ``Grid30Train-v1``, ``Hotspots30Train-v2`` and ``Grid15Train-v1``) and their report metrics
@@ -53,7 +54,7 @@ EPISODE_TASKS = ("ipp_bench/Grid30Train-v1", "ipp_bench/Hotspots30Train-v2", "ip
 EPISODE_PLANNERS = ("greedy", "attention")
 RTOL = 1e-9
 MAIN_PARTS = ("forward", "update", "save", "transfer", "waiting", "other")
-WORKER_PARTS = ("env_step", "forward", "send", "idle")
+WORKER_PARTS = ("env_step", "forward", "update", "send", "idle")
 
 
 # -- child processes (run with PYTHONPATH = one tree) ----------------------------------------------------
@@ -77,8 +78,9 @@ def _child_measure(mix: str, warmup: int, rollouts: int, n_steps: int, out: Path
     from ipp_bench.train.run import execute
 
     main_pid = os.getpid()
-    shared = mp.Array("d", 4)  # workers: env_step, send, idle, forward (summed), inherited by the forked workers
+    shared = mp.Array("d", 5)  # workers: env_step, send, idle, forward, update half (summed), inherited by the workers
     main = dict.fromkeys(("forward", "update", "save", "send", "unpickle", "waiting", "env_step"), 0.0)
+    depth = {"update": 0}  # inside the PPO update: a wait on a worker is the update's (train.update)
     clock = time.perf_counter
 
     def add(key: str, dt: float) -> None:
@@ -86,7 +88,7 @@ def _child_measure(mix: str, warmup: int, rollouts: int, n_steps: int, out: Path
             main[key] += dt
         else:
             with shared.get_lock():
-                shared[{"env_step": 0, "send": 1, "waiting": 2, "forward": 3}[key]] += dt
+                shared[{"env_step": 0, "send": 1, "waiting": 2, "forward": 3, "half": 4}[key]] += dt
 
     recv_orig, send_orig = mpc.Connection.recv, mpc.Connection.send
 
@@ -97,7 +99,8 @@ def _child_measure(mix: str, warmup: int, rollouts: int, n_steps: int, out: Path
         buf = self._recv_bytes()
         t1 = clock()
         obj = ForkingPickler.loads(buf.getbuffer())
-        add("waiting", t1 - t0)
+        if not (os.getpid() == main_pid and depth["update"]):
+            add("waiting", t1 - t0)
         if os.getpid() == main_pid:
             main["unpickle"] += clock() - t1
         return obj
@@ -122,15 +125,35 @@ def _child_measure(mix: str, warmup: int, rollouts: int, n_steps: int, out: Path
         orig = getattr(cls, name)
 
         def wrapper(self, *args, **kwargs):
+            depth[key] = depth.get(key, 0) + 1
             t0 = clock()
             try:
                 return orig(self, *args, **kwargs)
             finally:
-                main[key] += clock() - t0
+                depth[key] -= 1
+                if not depth[key]:  # the outermost call (a subclass's update may call MaskablePPO's)
+                    main[key] += clock() - t0
 
         setattr(cls, name, wrapper)
 
     timed(MaskablePPO, "train", "update")
+    try:  # the tree's own PPO class, where it has its own update (the split update, train.update)
+        from ipp_bench.train import rollout, update
+    except ImportError:
+        pass
+    else:
+        if "train" in vars(rollout.WorkerRolloutPPO):
+            timed(rollout.WorkerRolloutPPO, "train", "update")
+        half_orig = update.half_gradient
+
+        def half_gradient(policy, data):
+            t0 = clock()
+            try:
+                return half_orig(policy, data)
+            finally:
+                add("half", clock() - t0)
+
+        update.half_gradient = half_gradient
     timed(BaseAlgorithm, "save", "save")
     forward_orig = MaskableActorCriticPolicy.forward
 
@@ -152,7 +175,7 @@ def _child_measure(mix: str, warmup: int, rollouts: int, n_steps: int, out: Path
             for key in main:
                 main[key] = 0.0
             with shared.get_lock():
-                shared[:] = [0.0] * 4
+                shared[:] = [0.0] * len(shared)
             window["t0"], window["steps0"] = clock(), self.model.num_timesteps
         if count[0] == warmup + rollouts:
             window["t1"], window["steps1"] = clock(), self.model.num_timesteps
@@ -444,7 +467,7 @@ def breakdown(runs: list[dict]) -> tuple[dict, dict]:
     main = {"forward": m["forward"], "update": m["update"], "save": m["save"],
             "transfer": m["send"] + m["unpickle"], "waiting": m["waiting"]}
     main["other"] = wall - sum(main.values())
-    workers = {"env_step": w[0], "forward": w[3], "send": w[1], "idle": w[2]}
+    workers = {"env_step": w[0], "forward": w[3], "update": w[4] if len(w) > 4 else 0.0, "send": w[1], "idle": w[2]}
     scale = 1000.0 / steps
     return {k: v * scale for k, v in main.items()}, {k: v * scale for k, v in workers.items()}
 

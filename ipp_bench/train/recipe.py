@@ -24,7 +24,9 @@ one ``ipp-bench train`` run (rl-baselines3-zoo's habit: a published agent is reb
 ``{init}`` in a teacher stands for the weights the stage starts from. The runner skips finished
 stages, resumes an interrupted one (``--resume`` of its run folder) and ends by writing
 ``DIR/attention.pt`` (the last stage's handed-on weights, its meta listing every stage's command).
-A bad recipe is refused before any stage runs, with one line naming the key.
+A bad recipe is refused before any stage runs, with one line naming the key. ``--seed N`` runs every
+stage with seed N instead of the recipe's (one training seed of the method the recipe is; a method is
+judged over several, as rl-baselines3-zoo and rliable do).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ import re
 import shlex
 import signal
 import sys
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +59,7 @@ _SETTING_TYPES = {f.name: str(f.type) for f in fields(TrainArgs) if f.name not i
 _STAGE_KEYS = {"name": "str", "kind": "str", "what": "str", "from": "str", "hand_on": "str",
                "tasks": "list[str]", "teacher": "str", "teachers": "dict", "total_steps": "int"}
 # the command-line options that may go with --recipe (all others are the recipe's)
-_WITH_RECIPE = {"out", "device", "threads", "vec_env", "progress", "init"}
+_WITH_RECIPE = {"out", "device", "threads", "vec_env", "progress", "init", "seed"}
 
 
 class RecipeError(ValueError):
@@ -255,8 +257,8 @@ def run_recipe_command(args: argparse.Namespace) -> int:
     extra = sorted(set(given) - _WITH_RECIPE) + [m for m in ("resume", "export", "validate") if getattr(args, m)]
     if extra:
         return error(f"--recipe takes its settings from the recipe: --{extra[0].replace('_', '-')} cannot go with "
-                     "it (with it: --out, --dry-run, --from-stage with --init, --device, --threads, --vec-env, "
-                     "--no-progress)")
+                     "it (with it: --out, --seed, --dry-run, --from-stage with --init, --device, --threads, "
+                     "--vec-env, --no-progress)")
     if bool(args.from_stage) != bool(given.get("init")):
         return error("--from-stage STAGE and --init PT go together: the stage to start at and its starting weights")
     try:
@@ -266,14 +268,16 @@ def run_recipe_command(args: argparse.Namespace) -> int:
     except RecipeError as err:
         return error(str(err))
     out = Path(given.get("out") or "")
-    where = {k: given[k] for k in ("device", "threads", "vec_env", "progress") if k in given}
+    # --seed: the recipe's seed in every stage (a training seed of the method); the rest: where it runs
+    where = {k: given[k] for k in ("seed", "device", "threads", "vec_env", "progress") if k in given}
     if args.dry_run:
         print(dry_run(recipe, out if given.get("out") else Path("DIR"), args.from_stage, given.get("init", ""),
                       where))
         return 0
     if not given.get("out"):
         return error("--recipe needs --out DIR: the folder of its stages")
-    again = shlex.join(["ipp-bench", "train", "--recipe", args.recipe, "--out", str(out)] + (
+    seeded = ["--seed", str(given["seed"])] if "seed" in given else []
+    again = shlex.join(["ipp-bench", "train", "--recipe", args.recipe, "--out", str(out), *seeded] + (
         ["--from-stage", args.from_stage, "--init", given["init"]] if args.from_stage else []))
 
     def on_term(signum, frame):  # SIGTERM between stages too: stop as Ctrl-C does
@@ -290,7 +294,7 @@ def run_recipe_command(args: argparse.Namespace) -> int:
         return 130
     finally:
         signal.signal(signal.SIGTERM, old)
-    final = write_result(recipe, out, args.from_stage, given.get("init", ""))
+    final = write_result(recipe, out, args.from_stage, given.get("init", ""), given.get("seed"))
     print(f"wrote {final}")
     return 0
 
@@ -319,15 +323,16 @@ def _finished(run: Path, stage: Stage, out: Path) -> bool:
     return (run / "config.json").is_file() and RunState.load(run).done and stage.handed_on(out).is_file()
 
 
-def write_result(recipe: Recipe, out: Path, from_stage: str | None, init: str) -> Path:
-    """``DIR/attention.pt``: the last stage's handed-on weights, the meta listing every stage."""
+def write_result(recipe: Recipe, out: Path, from_stage: str | None, init: str, seed: int | None = None) -> Path:
+    """``DIR/attention.pt``: the last stage's handed-on weights, the meta listing every stage (``seed``: the
+    ``--seed`` the stages ran with, where it was given)."""
     import json
 
     from ipp_bench.policies.checkpoint import load_checkpoint, save_checkpoint
 
     last = recipe.stages[-1]
     net, meta = load_checkpoint(last.handed_on(out))
-    ran = {s.name: cfg for s, cfg in plan(recipe, out, from_stage, init)}
+    ran = {s.name: (cfg if seed is None else replace(cfg, seed=seed)) for s, cfg in plan(recipe, out, from_stage, init)}
     stages = []
     for i, stage in enumerate(recipe.stages, 1):
         cfg = ran.get(stage.name)
@@ -343,6 +348,8 @@ def write_result(recipe: Recipe, out: Path, from_stage: str | None, init: str) -
         stages.append(row)
     meta = {k: v for k, v in meta.items() if k.startswith("val/") or k in ("versions", "seeds")}
     meta.update(recipe=recipe.name, command=f"ipp-bench train --recipe {recipe.name} --out {out}"
+                + (f" --seed {seed}" if seed is not None else "")
                 + (f" --from-stage {from_stage} --init {init}" if from_stage else ""), stages=stages,
+                training_seed=ran[recipe.stages[-1].name].seed if recipe.stages[-1].name in ran else seed,
                 ppo_steps_total=sum(r.get("ppo_steps", 0) or 0 for r in stages if r["kind"] == "ppo"))
     return save_checkpoint(net, out / "attention.pt", meta=meta)

@@ -51,8 +51,8 @@ class WorkerRollout:
             if type(venv).__name__ != "RolloutDummyVecEnv":  # a worker process: one thread, the cores are shared
                 torch.set_num_threads(1)
             self.policy = cls(**kwargs)
-            self.policy.set_training_mode(False)
         self.policy.load_state_dict(state)
+        self.policy.set_training_mode(False)  # also after a half of an update (train.update) in this worker
         generators = [torch.Generator().manual_seed(int(s)) for s in env_seeds]
         if self.episode_starts is None:
             self.reset(venv.num_envs)
@@ -111,8 +111,10 @@ def _concat(parts: list[Any]) -> Any:
 
 class WorkerRolloutPPO(MaskablePPO):
     """``MaskablePPO`` whose rollouts the environment workers collect (:mod:`ipp_bench.train.rollout`),
-    where its environments are a :class:`~ipp_bench.train.vec.ShardedSubprocVecEnv`; on any other
-    environments, SB3's own rollout loop. Updates, saving and loading are ``MaskablePPO``'s."""
+    where its environments are a :class:`~ipp_bench.train.vec.ShardedSubprocVecEnv`, and whose update
+    computes every minibatch's gradient in two halves, the second in a worker
+    (:mod:`ipp_bench.train.update`); on any other environments, SB3's own rollout loop. Saving and
+    loading are ``MaskablePPO``'s."""
 
     _rollouts = 0
     _policy_sent_to: Any = None  # the worker set that holds the policy's class and arguments
@@ -120,6 +122,20 @@ class WorkerRolloutPPO(MaskablePPO):
     def _excluded_save_params(self) -> list[str]:
         # a run state of this process, not of the model: a loaded model sends its policy to its own workers
         return [*super()._excluded_save_params(), "_policy_sent_to", "_rollouts"]
+
+    def train(self) -> None:
+        """``MaskablePPO``'s update with every minibatch's gradient computed in two halves, the second in
+        a worker process where there are workers (:mod:`ipp_bench.train.update`); on a GPU, SB3's own."""
+        from ipp_bench.train.update import RemoteHalf, split_train
+
+        if self.device.type != "cpu":
+            return super().train()
+        venv = getattr(self.env, "worker_rollouts", None)
+        workers = getattr(venv, "__self__", None)
+        remote = RemoteHalf(workers) if workers is not None and hasattr(workers, "remotes") else None
+        if remote is not None and self._policy_sent_to is not workers:  # the workers hold no policy yet
+            remote = None
+        return split_train(self, remote)
 
     def collect_rollouts(self, env: Any, callback: Any, rollout_buffer: Any, n_rollout_steps: int,
                          use_masking: bool = True) -> bool:

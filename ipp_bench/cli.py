@@ -7,6 +7,7 @@ Subcommands::
     ipp-bench evaluate --task T --planner P --seed S    one episode, its metrics (--render out.png)
     ipp-bench leaderboard [--quick] [--out DIR] ...     every planner on every benchmark task
     ipp-bench leaderboard --planners P --against DIR    a new planner paired with a published board
+    ipp-bench leaderboard --sweep mcts:simulations=8,64 one setting's range: quality against decision time
     ipp-bench power DIR [--half-width 3]                episodes each task needs for a paired interval
     ipp-bench train ... | --recipe NAME --out DIR       train the attention policy   (extra [train])
     ipp-bench demo ...                                  MuJoCo deployment demo       (extra [sim])
@@ -106,6 +107,10 @@ def build_parser() -> argparse.ArgumentParser:
     lb.add_argument("--planners", nargs="+", metavar="SPEC",
                     help="planner specs such as greedy or mcts:simulations=50, separated by spaces or commas "
                          "(default: every registered planner that can be built here; the others are named)")
+    lb.add_argument("--sweep", metavar="SPEC", action="append", default=[],
+                    help="fly a planner over a range of one numeric setting, one planner spec per value, beside the "
+                         "other planners: NAME:KEY=V1,V2,... with fixed settings after the values as KEY=VALUE, e.g. "
+                         "mcts:simulations=8,24,64 (repeatable); the report draws quality against decision time")
     lb.add_argument("--episodes", type=int, help="episodes per task and planner (default 20; --quick: 3)")
     lb.add_argument("--seed", type=int, default=None, help="base seed the episode seeds derive from (default 0)")
     lb.add_argument("--workers", type=int, help="parallel workers (default: the CPUs available)")
@@ -129,10 +134,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "never the ground truth (the same numbers); on by default for planners of installed plugins "
                          "and for every --against planner; refused for team and MuJoCo tasks")
     lb.add_argument("--against", metavar="FOLDER",
-                    help="pair the --planners with a published board (e.g. baselines/v2): fly them on its tasks, "
-                         "task configurations and episode seeds, and write to --out a report with its rows copied "
-                         "in (marked published); FOLDER is only read. A task configuration or seed set that "
-                         "differs is refused, naming what differs")
+                    help="pair the --planners and --sweep with a published board (e.g. baselines/v2): fly them on its "
+                         "tasks, task configurations and episode seeds (--tasks: some of its tasks; --episodes N: its "
+                         "first N seeds), and write to --out a report with its rows of those copied in (marked "
+                         "published); FOLDER is only read. A task configuration or seed set that differs is refused, "
+                         "naming what differs")
     lb.add_argument("--trust-unverified", action="store_true",
                     help="with --against: use a published board whose run.json records no row digests (made before "
                          "they were recorded); its rows are still checked otherwise, and the report says they are "
@@ -449,6 +455,7 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from .eval.leaderboard import EpisodeFailed, Interrupted, run_leaderboard
     from .eval.plan import describe_quick, make_plan
     from .eval.run_json import ResultsMismatchError
+    from .eval.sweep import sweep_specs
     from .planners import split_specs
 
     started = time.perf_counter()
@@ -461,13 +468,14 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
             raise ValueError(f"--planners {' '.join(args.planners)!r} names no planner: pass planner specs "
                              "(e.g. --planners random greedy), or leave --planners out for every planner")
         power = _half_width(args.power, "--power")
-        _compile_search_kernels(specs if specs is not None else ["mcts"])  # the default list flies mcts
+        swept = sweep_specs(args.sweep)  # a bad --sweep is refused here, before any work
+        _compile_search_kernels([*(specs if specs is not None else [] if args.against else ["mcts"]), *swept])
         if args.against is not None:
-            if specs is None:
-                raise ValueError("--against needs --planners: the planners to pair with the published board")
-            plan = against_plan(args.against, specs, args.tasks, args.episodes, args.seed, args.quick,
+            if specs is None and not swept:
+                raise ValueError("--against needs --planners or --sweep: the planners to pair with the published board")
+            plan = against_plan(args.against, specs or [], args.tasks, args.episodes, args.seed, args.quick,
                                 parse_overrides(args.env), log=lambda m: print(m, flush=True),
-                                trust_unverified=args.trust_unverified)
+                                trust_unverified=args.trust_unverified, sweeps=swept)
             if os.path.realpath(args.out) == os.path.realpath(args.against):
                 raise ValueError(f"--out {args.out} is the published board itself: --against never writes there; "
                                  "pass another --out DIR")
@@ -477,7 +485,8 @@ def cmd_leaderboard(args: argparse.Namespace, argv: Sequence[str]) -> int:
                 raise ValueError("--trust-unverified goes with --against FOLDER (a published board without row "
                                  "digests); a folder of one's own is checked against its run.json as it resumes")
             plan = make_plan(args.tasks, specs, args.episodes, 0 if args.seed is None else args.seed, args.quick,
-                             parse_overrides(args.env), log=lambda m: print(m, flush=True), isolate=args.isolate)
+                             parse_overrides(args.env), log=lambda m: print(m, flush=True), isolate=args.isolate,
+                             sweeps=swept)
             reported = list(plan.planners)
         reference = _reference(args.reference, reported)
         rerun = [_one_of(spec, plan.planners, "--rerun") for spec in args.rerun]

@@ -21,7 +21,7 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.timeout(SLOW_TEST_TIMEOUT_S))
 
 
-#: a plugin's module: a planner ``first`` that always takes the first affordable neighbour
+#: a plugin's module: a planner ``first`` that takes the first affordable neighbour (or the ``index``-th)
 FIRST_PLANNER = """
 from dataclasses import dataclass
 
@@ -32,7 +32,9 @@ from ipp_bench.planners.base import GraphPlanner
 
 @dataclass(frozen=True)
 class FirstConfig:
-    \"\"\"No settings: always the first affordable neighbour.\"\"\"
+    \"\"\"index: which affordable neighbour (0: the first; past the last: the last).\"\"\"
+
+    index: int = 0
 
 
 class FirstPlanner(GraphPlanner):
@@ -40,7 +42,8 @@ class FirstPlanner(GraphPlanner):
     Config = FirstConfig
 
     def act(self, obs):
-        return int(np.flatnonzero(obs["action_mask"])[0])
+        affordable = np.flatnonzero(obs["action_mask"])
+        return int(affordable[min(self.settings.index, len(affordable) - 1)])
 """
 
 

@@ -12,17 +12,47 @@ blocks, which made every large tensor of a training step page-fault afresh.
 
 from __future__ import annotations
 
+import math
 import os
+from pathlib import Path
+
+#: where the cgroup CPU quota is read (v2 ``cpu.max``, v1 ``cpu/cpu.cfs_quota_us``)
+CGROUP_ROOT = "/sys/fs/cgroup"
 
 _applied = False
 
 
-def available_cpus() -> int:
-    """CPUs this process may run on (the affinity mask where the OS has one)."""
+def available_cpus(cgroup_root: str | None = None) -> int:
+    """CPUs this process may keep busy: those it may run on (its affinity mask, where the OS has one), within its
+    cgroup's CPU quota (:func:`cgroup_cpu_quota`; ``cgroup_root``: where it is read, default :data:`CGROUP_ROOT`)."""
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        cpus = max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover (macOS, Windows)
-        return max(1, os.cpu_count() or 1)
+        cpus = max(1, os.cpu_count() or 1)
+    quota = cgroup_cpu_quota(cgroup_root)
+    return min(cpus, quota) if quota else cpus
+
+
+def cgroup_cpu_quota(root: str | None = None) -> int | None:
+    """The CPUs this process's cgroup may use (its CPU quota, rounded up), or None without a quota.
+
+    A container limited to 2 CPUs on a larger host (``docker --cpus 2``) still sees every host CPU
+    in its affinity mask; only the quota (cgroup v2 ``cpu.max``, v1 ``cpu/cpu.cfs_quota_us`` over
+    ``cpu/cpu.cfs_period_us``, under ``root``, default :data:`CGROUP_ROOT`) tells how many it may keep busy."""
+    base = Path(root or CGROUP_ROOT)
+    try:
+        quota, period = (base / "cpu.max").read_text().split()[:2]
+        if quota == "max":
+            return None
+        return max(1, math.ceil(int(quota) / int(period)))
+    except (OSError, ValueError, ZeroDivisionError):
+        pass
+    try:
+        quota_us = int((base / "cpu" / "cpu.cfs_quota_us").read_text())
+        period_us = int((base / "cpu" / "cpu.cfs_period_us").read_text())
+    except (OSError, ValueError):
+        return None
+    return max(1, math.ceil(quota_us / period_us)) if quota_us > 0 and period_us > 0 else None
 
 
 def limit_blas_threads() -> None:

@@ -11,7 +11,9 @@ deriving benchmark sets from tags).
 from __future__ import annotations
 
 import json
+import multiprocessing as mp
 import re
+import sys
 import warnings
 from collections.abc import Iterable
 from pathlib import Path
@@ -38,6 +40,29 @@ from .taskfile import (
 
 #: what ``gym.make_vec`` of a MuJoCo task passes to its vector env (the spec's ``vector_kwargs``)
 VECTOR_KWARGS = {"context": "forkserver"}
+#: the line a worker process adds when the user's script, imported anew in it, starts processes of its own
+BOOTSTRAP_HINT = ("ipp-bench: a vector env's worker process imports your script anew ('forkserver' or 'spawn'), and "
+                  "your script starts processes at its top level: put the code that makes environments under "
+                  "`if __name__ == \"__main__\":`")
+
+
+def _name_the_main_guard() -> None:
+    """In a worker process that is importing the user's script (multiprocessing's bootstrapping), make the
+    RuntimeError of a vector env made at the script's top level end with the fix, in one line (the parent only
+    sees its worker gone, a ConnectionResetError)."""
+    if not getattr(mp.current_process(), "_inheriting", False):
+        return
+    previous = sys.excepthook
+
+    def hook(cls, err, tb):
+        previous(cls, err, tb)
+        if issubclass(cls, RuntimeError) and "bootstrapping phase" in str(err):
+            print(BOOTSTRAP_HINT, file=sys.stderr)
+
+    sys.excepthook = hook
+
+
+_name_the_main_guard()
 
 
 def load_task(path) -> str:

@@ -76,32 +76,40 @@ def read_published(folder: str | Path, trust_unverified: bool = False) -> Publis
 def against_plan(folder: str | Path, planners: Sequence[str], tasks: Sequence[str] | None = None,
                  episodes: int | None = None, seed: int | None = None, quick: bool = False,
                  env_overrides: dict[str, Any] | None = None, log: Callable[[str], None] = print,
-                 check_start: bool = True, trust_unverified: bool = False) -> Plan:
+                 check_start: bool = True, trust_unverified: bool = False, sweeps: Sequence[str] = ()) -> Plan:
     """The plan that flies ``planners`` on the published board in ``folder``: its tasks, task
     configurations, environment overrides and episode seeds, so every new row pairs with every
     published one.
 
-    ``tasks``, ``episodes``, ``seed`` and ``env_overrides`` may be given only as the board has them;
+    ``tasks`` may name some of the board's tasks and ``episodes`` its first ``episodes`` seeds (the seeds are
+    prefix-stable, :func:`~ipp_bench.eval.plan.episode_seeds`): the plan flies those, and only the published rows
+    of those tasks and seeds join its report (:func:`~ipp_bench.eval.results.copy_published`), so a board can be
+    paired with in chunks. ``seed`` and ``env_overrides`` may be given only as the board has them;
     ``trust_unverified`` uses a board whose run.json records no row digests (the report says so).
+    ``sweeps``: planner specs of ``--sweep`` points (:func:`~ipp_bench.eval.sweep.sweep_specs`); a point that is on
+    the board already is not flown (its published rows join the sweep), with a note.
     Every planner flies isolated, in a process of its own (a submission never runs beside the truth).
 
     Raises:
-        ValueError: naming what differs: an argument given otherwise than the board has it, a task
-            configuration that today's suite gives otherwise (field by field), seeds that today's
-            seed scheme derives otherwise, a planner that is on the board already; or the board's
-            own problems (:func:`read_published`).
+        ValueError: naming what differs: an argument given otherwise than the board has it (a task not on the
+            board, more episodes than it has), a task configuration that today's suite gives otherwise (field
+            by field), seeds that today's seed scheme derives otherwise, a planner that is on the board already;
+            or the board's own problems (:func:`read_published`).
     """
     board = read_published(folder, trust_unverified)
     name = f"--against {folder}"
     if not board.verified:
         log(f"note: {name}: its {RUN_JSON} records no row digests; its rows are used unverified ({TRUST_FLAG})")
     given = []
+    mine = list(board.tasks)
     if tasks is not None:
         mine = [resolve_task(t) for t in tasks]
-        if set(mine) != set(board.tasks):
-            given.append(f"--tasks {' '.join(mine)}: the board has {' '.join(board.tasks)}")
-    if episodes is not None and episodes != board.episodes:
-        given.append(f"--episodes {episodes}: the board has {board.episodes} per task and planner")
+        if set(mine) - set(board.tasks):
+            given.append(f"--tasks {' '.join(t for t in mine if t not in board.tasks)}: not on the board, which has "
+                         f"{' '.join(board.tasks)} (name some of these)")
+    if episodes is not None and not 1 <= episodes <= board.episodes:
+        given.append(f"--episodes {episodes}: the board has {board.episodes} per task and planner (give at most "
+                     f"{board.episodes}: the first N of its seeds fly)")
     if seed is not None and seed != board.seed:
         given.append(f"--seed {seed}: the board's episode seeds derive from seed {board.seed}")
     if quick:
@@ -125,9 +133,15 @@ def against_plan(folder: str | Path, planners: Sequence[str], tasks: Sequence[st
     if differences:
         raise ValueError(f"{name}: the published board was flown on other tasks or episodes than today's suite "
                          "gives, so new rows would not pair with it:\n" + "\n".join(f"  {d}" for d in differences))
-    plan = make_plan(board.tasks, planners, board.episodes, board.seed, False, board.env_overrides, log=log,
-                     check_start=check_start, isolate=True,
-                     isolate_why="every planner of an --against submission is isolated by default")
+    swept = [s for s in sweeps if s not in board.planners]
+    for spec in (s for s in sweeps if s in board.planners):
+        log(f"note: {name}: {spec} is on the board already: its published rows join the sweep, it is not flown again")
+    if not planners and not swept:
+        raise ValueError(f"{name}: nothing to fly: every --sweep point is on the board already; name other values "
+                         "or --planners")
+    plan = make_plan([t for t in board.tasks if t in mine], planners, episodes or board.episodes, board.seed, False,
+                     board.env_overrides, log=log, check_start=check_start, isolate=True,
+                     isolate_why="every planner of an --against submission is isolated by default", sweeps=swept)
     clash = [p for p in plan.planners if p in board.planners]
     if clash:
         raise ValueError(f"{name}: {', '.join(clash)} is on the board already (its published rows join the report "

@@ -20,6 +20,7 @@ import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -27,7 +28,7 @@ import numpy as np
 from ..envs import tagged, task_config, task_spec
 from ..envs.registry import is_team_task, resolve_task
 from ..planners import make_config, make_planner, parse_spec, planner_names
-from ..planners.isolation import isolated_by_default
+from ..planners.isolation import describe_planner, isolated_by_default
 from .fingerprint import normalised_overrides, planner_fingerprint, task_config_record
 
 SEED_SCHEME = "SeedSequence(seed).spawn(episodes)[i] -> uint31"
@@ -66,22 +67,42 @@ def _check_episodes(episodes: Any) -> None:
         raise ValueError(f"episodes = {episodes!r} is invalid: expected an integer in [1, {MAX_EPISODES}]")
 
 
-def canonical_spec(spec: str, extra: dict[str, Any] | None = None) -> str:
+def canonical_spec(spec: str, extra: dict[str, Any] | None = None, *, isolated: bool = False) -> str:
     """``"mcts:simulations=050"`` -> ``"mcts:simulations=50"``: name, then the overrides and the planner's
     :data:`SPELLED_SETTINGS` sorted, as the planner's config holds them (``"mcts"`` -> ``"mcts:simulations=24"``).
-    ``extra`` overrides apply where the spec does not set the key.
+    ``extra`` overrides apply where the spec does not set the key. ``isolated``: the config is read from the
+    planner's own process (:func:`~ipp_bench.planners.isolation.describe_planner`), so that this process never
+    imports the planner's code.
 
     Raises:
         ValueError: unknown planner or setting, or a value of the wrong type.
     """
     name, overrides = parse_spec(spec)
     overrides = {**(extra or {}), **overrides}
-    config = make_config(name, overrides)
+    if isolated:
+        asked = ",".join(f"{k}={_format_value(v)}" for k, v in overrides.items())
+        settings = describe_planner(f"{name}:{asked}" if asked else name)["settings"]
+        config = SimpleNamespace(**{k: tuple(v) if isinstance(v, list) else v for k, v in settings.items()})
+    else:
+        config = make_config(name, overrides)
     keys = sorted(set(overrides) | {k for k in SPELLED_SETTINGS.get(name, ()) if hasattr(config, k)})
     if not keys:
         return name
     parts = [f"{k}={_format_value(getattr(config, k))}" for k in keys]
     return f"{name}:{','.join(parts)}"
+
+
+def planner_settings(spec: str) -> dict[str, Any]:
+    """Every setting of planner ``spec`` (its config's fields, defaults included); a planner the leaderboard
+    isolates by default (an installed plugin's) is described by its own process, never built in this one.
+
+    Raises:
+        ValueError: unknown planner or setting, or a value of the wrong type (a plugin's: one line).
+    """
+    if isolated_by_default(spec):
+        return dict(describe_planner(spec)["settings"])
+    name, overrides = parse_spec(spec)
+    return dataclasses.asdict(make_config(name, overrides))
 
 
 def _format_value(value: Any) -> str:
@@ -109,12 +130,13 @@ def default_planners(log: Callable[[str], None] = print, team: bool = False) -> 
     """
     names = []
     for name in planner_names():
-        try:
-            planner = make_planner(name)
+        try:  # a plugin's planner is built in its own process only (never beside the truth)
+            team_planner = (describe_planner(name)["team"] if isolated_by_default(name)
+                            else getattr(make_planner(name), "team", False))
         except Exception as err:  # any broken planner (a plugin's bug too) is left out, with its reason
             log(f"note: leaving planner {name!r} out of the default list: {type(err).__name__}: {err}")
             continue
-        if getattr(planner, "team", False) and not team:
+        if team_planner and not team:
             continue
         names.append(name)
     return names
@@ -212,7 +234,7 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
               episodes: int | None = None, seed: int = 0, quick: bool = False,
               env_overrides: dict[str, Any] | None = None,
               log: Callable[[str], None] = print, check_start: bool = True, isolate: bool = False,
-              isolate_why: str = "--isolate") -> Plan:
+              isolate_why: str = "--isolate", sweeps: Sequence[str] = ()) -> Plan:
     """Resolve and validate the leaderboard's arguments.
 
     Args:
@@ -231,6 +253,8 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
             planners of installed plugins' entry points
             (:func:`~ipp_bench.planners.isolation.isolated_by_default`). ``isolate_why``: what asked
             for it, as a refusal names it.
+        sweeps: planner specs of ``--sweep`` points (:func:`ipp_bench.eval.sweep.sweep_specs`), flown after
+            ``planners`` (or the default list); a point that is one of those planners flies once.
 
     Raises:
         ValueError: unknown task, planner or setting; a planner that cannot be built (its message);
@@ -250,22 +274,27 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
                              f"of {mission.budget_s} s; lower report_times or raise budget_s")
     if episodes is not None:
         _check_episodes(episodes)
-    if planners is not None and not [p for p in planners if str(p).strip(" ,")]:
+    if planners is not None and not [p for p in planners if str(p).strip(" ,")] and not sweeps:
         raise ValueError(f"the planner list {list(planners)!r} names no planner: pass planner specs "
                          "(e.g. --planners random greedy), or leave --planners out for every planner")
     specs = list(planners) if planners is not None else default_planners(
         log, team=any(is_team_task(t) for t in task_ids))
+    given = len(specs)
+    specs = [*specs, *sweeps]
     if not specs:
         raise ValueError("no planner can be built: pass --planners")
     resolved, fingerprints, quick_changed, built = [], {}, quick and episodes is None, {}
-    for spec in specs:
+    for i, spec in enumerate(specs):
         name = parse_spec(spec)[0]
-        without_quick = canonical_spec(spec)
-        canon = canonical_spec(spec, QUICK_OVERRIDES.get(name) if quick else None)
+        apart = isolate or isolated_by_default(spec)  # built in its own process only, never in this one
+        without_quick = canonical_spec(spec, isolated=apart)
+        canon = canonical_spec(spec, QUICK_OVERRIDES.get(name) if quick else None, isolated=apart)
+        if i >= given and canon in resolved:  # a sweep's point that is one of the planners already
+            continue
         quick_changed = quick_changed or canon != without_quick
         # a planner must build here, or fail now, loudly (the default list holds buildable ones)
-        built[canon] = make_planner(canon)
-        fingerprint = planner_fingerprint(built[canon])
+        built[canon] = None if apart else make_planner(canon)
+        fingerprint = describe_planner(canon)["fingerprint"] if apart else planner_fingerprint(built[canon])
         if fingerprint:
             fingerprints[canon] = fingerprint
         resolved.append(canon)
@@ -317,7 +346,9 @@ def _check_distinct_episodes(task: str, seeds: Sequence[int], env_overrides: dic
 
 def check_episode_starts(tasks: Sequence[str], planners: dict[str, Any], seed: int,
                          env_overrides: dict[str, Any]) -> None:
-    """Reset every task's env for episode ``seed`` and every planner on it (no decision).
+    """Reset every task's env for episode ``seed`` and every planner on it (no decision); a planner given as
+    None is isolated: its spec starts in the planner's own process
+    (:func:`~ipp_bench.planners.isolation.start_isolated`), never in this one.
 
     Raises:
         ValueError: naming task and planner: a start that pays for no first move, a planner that
@@ -335,7 +366,10 @@ def check_episode_starts(tasks: Sequence[str], planners: dict[str, Any], seed: i
                 raise ValueError(f"task {task}: {err}") from None
             for spec, planner in planners.items():
                 try:  # a team task builds one planner per UAV from the spec
-                    start_episode(env, spec if is_team_env(env) else planner, seed)
+                    started, _ = start_episode(env, spec if is_team_env(env) or planner is None else planner, seed,
+                                               isolate=planner is None)
+                    if planner is None:
+                        started.finish()
                 except ValueError as err:
                     raise ValueError(f"task {task}, planner {spec}: {err}") from None
         finally:
@@ -360,4 +394,4 @@ def describe_quick() -> str:
 
 __all__ = ["DEFAULT_EPISODES", "MAX_EPISODES", "QUICK_EPISODES", "QUICK_OVERRIDES", "SPELLED_SETTINGS",
            "EpisodeJob", "Plan", "canonical_spec", "check_isolation", "default_planners", "check_episode_starts",
-           "describe_quick", "episode_seeds", "make_plan", "report_times", "resolve_task"]
+           "describe_quick", "episode_seeds", "make_plan", "planner_settings", "report_times", "resolve_task"]

@@ -6,6 +6,10 @@
     ROI trace and ROI RMSE over mission time per planner: mean with a shaded 95% band.
 ``runtime_per_decision.png`` (:func:`plot_runtime`)
     runtime per decision per planner and task (log scale, 95% interval whiskers).
+``frontier_<task>.png`` (:func:`plot_frontier`)
+    where the board holds a sweep: mean uncertainty reduction against mean decision time (log scale), one
+    panel per report time, sweeps joined and labelled by their setting, paired 95% whiskers from the
+    reference, the Pareto front as a step line.
 
 Plots use matplotlib's Agg canvas through :class:`matplotlib.figure.Figure` (no pyplot, no
 display, no global backend switch). Reference planners that read the truth are drawn dashed.
@@ -24,6 +28,7 @@ from ..envs import short_task_id
 from ..planners import is_reference
 from . import aggregate as agg_stats
 from .aggregate import LEVEL
+from .frontier import Frontier
 from .tables import EpisodeTable, ordered
 
 CURVES = (("trace_roi", "ROI trace of the covariance"), ("rmse_roi", "ROI RMSE"))
@@ -34,6 +39,11 @@ RUNTIME_PNG = "runtime_per_decision.png"
 def curves_png(task: str) -> str:
     """The file name of ``task``'s curves."""
     return f"curves_{short_task_id(task).replace('/', '_')}.png"
+
+
+def frontier_png(task: str) -> str:
+    """The file name of ``task``'s quality against decision time."""
+    return f"frontier_{short_task_id(task).replace('/', '_')}.png"
 
 
 def _figure(**kwargs):
@@ -135,4 +145,53 @@ def plot_profile(table: EpisodeTable, est: agg_stats.AggregateEstimates, path: s
     return path
 
 
-__all__ = ["PROFILE_PNG", "RUNTIME_PNG", "curves_png", "plot_curves", "plot_profile", "plot_runtime"]
+def plot_frontier(frontier: Frontier, path: str | Path) -> Path:
+    """Quality against decision time on one task: a panel per report time, x the mean decision time (log),
+    y the mean uncertainty reduction; whiskers: the paired 95% interval from the reference, around the point."""
+    from matplotlib.ticker import FuncFormatter
+
+    names = [p.planner for p in frontier.points]
+    colours = _colours(names)
+    n = len(frontier.times)
+    cols = min(2, n)
+    rows = -(-n // cols)
+    fig = _figure(figsize=(6.0 * cols + 2.5, 4.0 * rows), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False).ravel())
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    for ax, t in zip(axes, frontier.times):
+        for p in (q for q in frontier.points if t in q.means):
+            x, y, d = 1000 * max(p.decision_time_s, 1e-7), p.means[t], p.versus.get(t)
+            err = None if d is None or d[1] is None else [[max(0.0, d[0] - d[1])], [max(0.0, d[2] - d[0])]]
+            label = p.planner + (" (reference, knows the true ROI)" if p.reads_truth else "")
+            ax.errorbar([x], [y], yerr=err, fmt="o", mfc="none" if p.reads_truth else colours[p.planner],
+                        color=colours[p.planner], capsize=3, label=label, zorder=3)
+            if p.planner == frontier.reference:
+                ax.axhline(y, color=colours[p.planner], linestyle=":", linewidth=1)
+        for sweep in frontier.sweeps:
+            pts = [(1000 * max(frontier.point(s).decision_time_s, 1e-7), frontier.point(s).means[t], v)
+                   for v, s in sweep.points if t in frontier.point(s).means]
+            ax.plot([q[0] for q in pts], [q[1] for q in pts], color="0.4", linewidth=1, zorder=2)
+            for x, y, v in pts:
+                ax.annotate(f"{sweep.key}={v:g}", (x, y), textcoords="offset points", xytext=(4, 4), fontsize="x-small")
+        front = sorted((1000 * max(p.decision_time_s, 1e-7), p.means[t]) for p in frontier.points if t in p.front)
+        if front:
+            ax.step([q[0] for q in front], [q[1] for q in front], where="post", color="k", alpha=0.3, linewidth=3,
+                    marker="o", markersize=13, mfc="none", label="Pareto front", zorder=1)
+        ax.set_xscale("log")
+        for axis in (ax.xaxis.set_major_formatter, ax.xaxis.set_minor_formatter):
+            axis(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.set_xlabel("mean decision time [ms] (log)")
+        ax.set_ylabel("uncertainty reduction [%]")
+        ax.set_title(f"at {t:g} s", fontsize="medium")
+        ax.grid(alpha=0.3, which="both")
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside right center", fontsize="small")
+    versus = f"; whiskers: {LEVEL:.0%} paired interval from {frontier.reference}" if frontier.reference else ""
+    fig.suptitle(f"{short_task_id(frontier.task)}: quality against decision time{versus}", fontsize="medium")
+    path = Path(path)
+    write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    return path
+
+
+__all__ = ["PROFILE_PNG", "RUNTIME_PNG", "curves_png", "frontier_png", "plot_curves", "plot_frontier", "plot_profile",
+           "plot_runtime"]

@@ -16,6 +16,8 @@ together:
   against a published board also against each of its planners
   (:func:`~ipp_bench.eval.markdown.versus_table`; the published rows are marked); when a reference
   that reads the truth (the ``oracle``) ran, every planner's distance to it;
+- quality against decision time, where the board holds a sweep of a planner's setting
+  (:func:`~ipp_bench.eval.markdown_frontier.frontier_section`, numbers from :mod:`ipp_bench.eval.frontier`);
 - what more UAVs buy, where a team task and its single-UAV task are both on the board;
 - the power rule (:func:`~ipp_bench.eval.markdown_stats.power_section`);
 - the absolute values at the end of the mission, notes, and the plots
@@ -27,16 +29,27 @@ extra that adds the plots.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from ..core.data import write_atomically
 from ..planners import is_reference
 from . import aggregate as agg_stats
 from .aggregate import BOOTSTRAP_METHOD, BOOTSTRAP_SEED, LEVEL, N_RESAMPLES
+from .frontier import Frontier, headroom, infer_sweeps, match_answers, task_frontier
 from .markdown import NO_INTERVAL, REDUCTIONS, final_table, markdown_table, paired_table, team_section, versus_table
+from .markdown_frontier import frontier_section
 from .markdown_stats import aggregate_estimates, aggregate_section, power_section
-from .plots import PROFILE_PNG, RUNTIME_PNG, curves_png, plot_curves, plot_profile, plot_runtime
+from .plots import (
+    PROFILE_PNG,
+    RUNTIME_PNG,
+    curves_png,
+    frontier_png,
+    plot_curves,
+    plot_frontier,
+    plot_profile,
+    plot_runtime,
+)
 from .power import POWER_HALF_WIDTH
 from .results import PUBLISHED_CSV
 from .results_csv import read_results
@@ -56,7 +69,8 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
                     power: float | None = POWER_HALF_WIDTH, profile_png: str | None = None,
                     estimates: tuple[agg_stats.Board, agg_stats.AggregateEstimates | None] | None = None,
                     made_on: Sequence[str] = (), published_unverified: bool = False,
-                    isolated: Sequence[str] = ()) -> str:
+                    isolated: Sequence[str] = (), frontiers: Sequence[Frontier] | None = None,
+                    frontier_pngs: Mapping[str, str] | None = None) -> str:
     """The whole leaderboard.md.
 
     Args:
@@ -70,6 +84,8 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
         isolated: the planners whose rows (some of them, in a resumed folder) flew in a process of their own
             (run.json's ``isolated_planners``; a published board's as it recorded them): said under the
             per-task tables. None isolated: nothing is said.
+        frontiers: :func:`frontiers_of` ``table`` (computed when None); ``frontier_pngs``: their plots' file
+            names per task.
     """
     counts = sorted({table.episodes(t, p) for t in table.tasks for p in table.planners if table.episodes(t, p)})
     n_text = (" to ".join(str(c) for c in (counts[0], counts[-1])) if len(counts) > 1
@@ -158,6 +174,12 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
                 "",
                 versus_table(table, planner, key),
             ]
+    if frontiers is None:
+        frontiers = frontiers_of(table, reference)
+    section = frontier_section(table, frontiers, {f.task: match_answers(table, f) for f in frontiers},
+                               {f.task: headroom(table, f) for f in frontiers}, frontier_pngs or {})
+    if section:
+        parts += [section]
     teams = team_section(table)
     if teams:
         parts += [teams]
@@ -171,6 +193,14 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
     if plots:
         parts += ["## Plots", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in plots] + [""]
     return "\n".join(parts)
+
+
+def frontiers_of(table: EpisodeTable, reference: str | None) -> list[Frontier]:
+    """Quality against decision time on every task where a sweep (:func:`~ipp_bench.eval.frontier.infer_sweeps`)
+    flew, paired with ``reference``."""
+    sweeps = infer_sweeps(table.planners)
+    ref = resolve_reference(reference, table.planners) if reference else None
+    return [f for t in table.tasks if (f := task_frontier(table, t, ref, sweeps)) is not None] if sweeps else []
 
 
 def isolated_note(planners: Sequence[str], published: Sequence[str] = ()) -> str:
@@ -189,8 +219,8 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
                  published_from: str | None = None, power: float | None = POWER_HALF_WIDTH,
                  made_on: Sequence[str] = (), published_unverified: bool = False,
                  isolated: Sequence[str] = ()) -> list[Path]:
-    """Write ``leaderboard.md``, ``performance_profile.png``, ``curves_<task>.png`` and
-    ``runtime_per_decision.png`` from a results.csv.
+    """Write ``leaderboard.md``, ``performance_profile.png``, ``curves_<task>.png``,
+    ``runtime_per_decision.png`` and, where the board holds a sweep, ``frontier_<task>.png`` from a results.csv.
 
     Without matplotlib the plots are left out, with a note in the report (and through ``log``).
 
@@ -217,6 +247,8 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
             planners = published + [p for p in planners if p not in published]
     table = EpisodeTable(rows, tasks, planners, published=published)
     estimates = aggregate_estimates(table)
+    frontiers = frontiers_of(table, reference)
+    pngs: dict[str, str] = {}
     written: list[Path] = []
     notes: list[str] = []
     profile_png = None
@@ -234,15 +266,19 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
                 written.append(plot_curves(table, task, out_dir / curves_png(task)))
         if table.runtime:
             written.append(plot_runtime(table, out_dir / RUNTIME_PNG))
+        for f in frontiers:
+            written.append(plot_frontier(f, out_dir / frontier_png(f.task)))
+            pngs[f.task] = written[-1].name
     if log is not None:
         for note in notes:
             log(f"note: {note}")
     md = out_dir / "leaderboard.md"
-    text = markdown_report(table, command, quick, [p.name for p in written if p.name != PROFILE_PNG], reference,
+    shown_apart = {PROFILE_PNG, *pngs.values()}
+    text = markdown_report(table, command, quick, [p.name for p in written if p.name not in shown_apart], reference,
                            notes, published_from, power, profile_png, estimates, made_on, published_unverified,
-                           isolated)
+                           isolated, frontiers, pngs)
     write_atomically(md, lambda tmp: tmp.write_text(text))
     return [md, *written]
 
 
-__all__ = ["isolated_note", "markdown_report", "write_report"]
+__all__ = ["frontiers_of", "isolated_note", "markdown_report", "write_report"]

@@ -38,6 +38,7 @@ leaves no ``run.json`` behind.
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import json
 import os
@@ -50,6 +51,7 @@ from ..core.data import OutputWriteError, check_output_dir, write_atomically
 from .machine import machine_info, same_machine
 from .plan import Plan, report_times
 from .results_csv import (
+    KEY_COLUMNS,
     RESULTS_CSV,
     ROW_DIGEST_HEX,
     BadRow,
@@ -367,7 +369,8 @@ class ResultsStore:
 
 def copy_published(plan: Plan, out_dir: str | Path) -> Path:
     """Copy the results.csv of the published board ``plan`` is paired with (:attr:`Plan.against`)
-    into ``out_dir`` as :data:`PUBLISHED_CSV`, checking that it is the file the plan read.
+    into ``out_dir`` as :data:`PUBLISHED_CSV`, checking that it is the file the plan read; only the rows of the
+    plan's tasks and seeds (some of the board's tasks, its first seeds), each line as it is (its digest holds).
 
     Raises:
         ResultsMismatchError: the published results.csv changed since (or is gone).
@@ -382,8 +385,16 @@ def copy_published(plan: Plan, out_dir: str | Path) -> Path:
         raise ResultsMismatchError(f"the published {source} is not the one this folder was paired with (its content "
                                    "changed): pass a new --out DIR to pair with it as it is now")
     target = Path(out_dir) / PUBLISHED_CSV
-    write_atomically(target, lambda tmp: tmp.write_bytes(data))
+    write_atomically(target, lambda tmp: tmp.write_bytes(_rows_of(data, set(plan.tasks), set(plan.seeds))))
     return target
+
+
+def _rows_of(data: bytes, tasks: set[str], seeds: set[int]) -> bytes:
+    """The header and the lines of ``data`` (a results.csv) of a task in ``tasks`` and a seed in ``seeds``."""
+    lines = data.decode().splitlines(keepends=True)
+    t, s = KEY_COLUMNS.index("task"), KEY_COLUMNS.index("seed")
+    kept = [ln for ln in lines[1:] if (f := next(csv.reader([ln])))[t] in tasks and int(f[s]) in seeds]
+    return "".join(lines[:1] + kept).encode()
 
 
 __all__ = ["PUBLISHED_CSV", "ResultsStore", "copy_published"]

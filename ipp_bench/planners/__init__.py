@@ -259,6 +259,8 @@ REGISTRY = PlannerRegistry(BUILT_IN, plugins=True)
 
 
 def _registry(registry: PlannerRegistry | None) -> PlannerRegistry:
+    """``registry``, or the suite's: :data:`REGISTRY` as this module holds it now (every default is looked up here,
+    so that one registry swapped in is the suite's everywhere)."""
     return REGISTRY if registry is None else registry
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..core.limits import MAX_DECISIONS
 from . import PlannerError, PlannerRegistry, make_planner, view_for, what_raised
-from .isolation import check_isolable, start_isolated
+from .isolation import check_isolable, planner_seed, start_isolated, target_of
 
 
 @dataclass
@@ -123,7 +123,7 @@ def start_episode(env, planner, seed: int, options: dict | None = None, registry
     obs, _ = env.reset(seed=int(seed), options=options)
     view = view_for(agent, env)
     try:
-        agent.reset(view, int(seed))
+        agent.reset(view, planner_seed(seed, target_of(planner, registry)))
     except (ValueError, ImportError):
         raise  # a task the planner refuses (or an extra it needs), in its own words
     except (Exception, SystemExit) as err:
@@ -155,7 +155,8 @@ def fly_episode(env, planner, seed: int, *, options: dict | None = None,
             one planner per UAV, built from the spec).
         planner: a planner spec (``"mcts:simulations=50"``) or a planner object.
         seed: episode seed: field, start and sensor noise (every planner meets the same episode),
-            and the planner's own generator.
+            and the seed of the planner's own generator (a planner other than the suite's gets
+            :func:`~ipp_bench.planners.isolation.planner_seed` of it).
         options: ``env.reset`` options (e.g. ``{"start_node": 3}``).
         on_reset: called with the env after the reset, before the first decision.
         on_decision: called with every :class:`Decision`, after it was carried out.
@@ -228,7 +229,8 @@ def _fly(env, planner, agent, obs, seed: int, on_reset, on_decision, isolate: bo
 def start_team_episode(env, planner: str | Any, seed: int, options: dict | None = None,
                        registry: PlannerRegistry | None = None) -> list:
     """Reset the team env for episode ``seed`` and one planner per UAV built from ``planner`` (a spec, or
-    a planner object not yet reset, copied per UAV); UAV i's generator is seeded with ``seed + i``.
+    a planner object not yet reset, copied per UAV); UAV i's generator is seeded with ``seed + i`` (a planner
+    other than the suite's with its :func:`~ipp_bench.planners.isolation.planner_seed`).
     Returns the planners. As :func:`~ipp_bench.planners.episode.start_episode`, a leaderboard calls it
     before the first episode."""
     label = planner if isinstance(planner, str) else getattr(planner, "name", type(planner).__name__)
@@ -238,7 +240,7 @@ def start_team_episode(env, planner: str | Any, seed: int, options: dict | None 
         agent = make_planner(planner, registry=registry) if isinstance(planner, str) else copy.deepcopy(planner)
         view = view_for(agent, seat)
         try:
-            agent.reset(view, int(seed) + i)
+            agent.reset(view, planner_seed(int(seed) + i, target_of(planner, registry)))
         except (ValueError, ImportError):
             raise
         except (Exception, SystemExit) as err:
@@ -256,7 +258,8 @@ def fly_team_episode(env, planner: str | Any, seed: int, *, options: dict | None
     Args:
         env: a :class:`~ipp_bench.envs.team.TeamGraphEnv`.
         planner: a planner spec (or a planner object not yet reset); every UAV gets its own planner.
-        seed: the episode seed (field, starts, camera noise); UAV i's planner generator gets seed + i.
+        seed: the episode seed (field, starts, camera noise); UAV i's planner gets the seed seed + i (a planner
+            other than the suite's: its :func:`~ipp_bench.planners.isolation.planner_seed`).
         options: ``env.reset`` options (``{"start_nodes": [...]}``).
         on_reset: called with the env after the reset, before the first decision.
         on_decision: called with every :class:`~ipp_bench.planners.episode.Decision` (its ``action`` is

@@ -16,7 +16,8 @@ What crosses the boundary:
 world -> planner   once per planner process: the spec and the planner registry (names -> ``module:Class``);
                    once per task: the task's config and id, a digest of the roadmap, the platform's class and
                    clock constants (:data:`~ipp_bench.planners.robot.CLOCKS`);
-                   once per episode: the seed ``reset`` gets (as in-process) and the belief model at the start
+                   once per episode: the seed ``reset`` gets (as in-process, :func:`planner_seed`) and the belief
+                   model at the start
                    (the prior and the start read-out, fused while the world's mission is made; its arrays through
                    a file, :func:`pack`);
                    every belief update, as the world's mission fuses it (its
@@ -40,8 +41,9 @@ the robot's belief, and every decision made on it, equals the in-process one bit
 (``tests/planners/test_isolation.py``). Metrics are the world's.
 
 What isolation does not stop: a planner that knows the task and its episode seeds can draw the field itself
-(the field is a function of the seed, and ``reset`` hands a planner the episode's seed for its own generator);
-hidden evaluation seeds are the leaderboard's part of the boundary. Nor does it sandbox the operating system
+(the field is a function of the seed; a planner other than the suite's gets a keyed hash of the episode's seed,
+:func:`planner_seed`, whose key is public, and a board's seeds are public); hidden evaluation seeds are the
+leaderboard's part of the boundary. Nor does it sandbox the operating system
 (files, ``/proc``, the network): a submission in a container is the next step.
 
 Planner processes are kept warm (one per planner spec and registry, at most :data:`MAX_WORKERS`, the least
@@ -53,6 +55,8 @@ ends its process, so none is left behind and none is reused out of step.
 from __future__ import annotations
 
 import atexit
+import functools
+import hashlib
 import json
 import multiprocessing as mp
 import os
@@ -65,7 +69,7 @@ import numpy as np
 
 from ..core.mission import Mission
 from ..envs.graph import GraphIPPEnv
-from . import BUILT_IN, REFERENCE_PLANNERS, REGISTRY, PlannerError, PlannerRegistry, parse_spec
+from . import BUILT_IN, REFERENCE_PLANNERS, PlannerError, PlannerRegistry, _installed_planners, _registry, parse_spec
 from .robot import ERRORS, clock_of, kinematic_state, roadmap_digest, serve
 
 #: planner processes kept warm at most (least recently used closed first)
@@ -160,7 +164,7 @@ def _forget(worker: _Worker) -> None:
 
 def _worker(spec: str, registry: PlannerRegistry | None) -> _Worker:
     """The warm process of ``spec`` (started if there is none)."""
-    registry = REGISTRY if registry is None else registry
+    registry = _registry(registry)
     key = (spec, id(registry))
     worker = _POOL.get(key)
     if worker is not None and worker.alive and worker.registry is registry:
@@ -275,7 +279,7 @@ def start_isolated(env, spec: str, seed: int, registry: PlannerRegistry | None =
     roi = mission.eval_roi if _suite_reference(spec, registry) else None
     model = pack(mission.belief_model)
     try:
-        reply = worker.request(("start", send, int(seed), model, pose_of(env), roi))
+        reply = worker.request(("start", send, planner_seed(seed, _target(spec, registry)), model, pose_of(env), roi))
     finally:
         if model[1] is not None:
             os.unlink(model[1])
@@ -303,10 +307,44 @@ def pack(obj: Any) -> tuple:
     return data, path, tuple(b.raw().nbytes for b in buffers)
 
 
+#: the key of the seed a planner other than the suite's own gets (:func:`planner_seed`): public, so that a
+#: planner's episodes are the same on every machine
+PLANNER_SEED_KEY = b"ipp-bench planner seed"
+
+
+@functools.cache
+def _suite_targets() -> frozenset[str]:
+    """The ``module:Class`` targets of the suite's own planners (:data:`BUILT_IN` and the suite's entry points)."""
+    return frozenset(BUILT_IN.values()) | frozenset(_installed_planners()[0].values())
+
+
+def planner_seed(seed: int, target: str) -> int:
+    """The seed ``reset`` hands the planner ``target`` (its ``module:Class``) in episode ``seed``, in-process and
+    isolated alike: the suite's own planners get the episode's seed (their published rows stay as they are); every
+    other planner a keyed BLAKE2b of it (:data:`PLANNER_SEED_KEY`), an integer in [0, 2^63), which is no seed of
+    the task's field generator (docs/planners.md, "Isolation": what this does and does not hide)."""
+    if target in _suite_targets():
+        return int(seed)
+    digest = hashlib.blake2b(int(seed).to_bytes(8, "little", signed=True), digest_size=8, key=PLANNER_SEED_KEY)
+    return int.from_bytes(digest.digest(), "little") >> 1
+
+
+def target_of(planner: Any, registry: PlannerRegistry | None = None) -> str:
+    """The ``module:Class`` of a planner: a spec's as ``registry`` names it (default: the suite's), an object's
+    class's."""
+    if isinstance(planner, str):
+        return _target(planner, registry)
+    return f"{type(planner).__module__}:{type(planner).__qualname__}"
+
+
+def _target(spec: str, registry: PlannerRegistry | None) -> str:
+    return _registry(registry).get(parse_spec(spec)[0], "")
+
+
 def _suite_reference(spec: str, registry: PlannerRegistry | None) -> bool:
     """Whether ``spec`` names the suite's own reference planner (its TruthView reads the true ROI): decided here,
     from the registry's target, never from what the planner's process asks for."""
-    registry = REGISTRY if registry is None else registry
+    registry = _registry(registry)
     name = parse_spec(spec)[0]
     return (name in REFERENCE_PLANNERS and name not in registry._classes
             and registry.get(name) == BUILT_IN.get(name))
@@ -322,10 +360,10 @@ def describe_planner(spec: str, registry: PlannerRegistry | None = None) -> dict
 def isolated_by_default(spec: str, registry: PlannerRegistry | None = None) -> bool:
     """Whether the leaderboard isolates ``spec`` without ``--isolate``: a planner from an installed plugin's entry
     point (:data:`~ipp_bench.planners.ENTRY_POINT_GROUP`; the suite's own entry points are not plugins)."""
-    registry = REGISTRY if registry is None else registry
+    registry = _registry(registry)
     registry.names()  # the installed plugins join on first use
     return parse_spec(spec)[0] in registry._entry_points
 
 
-__all__ = ["MAX_WORKERS", "RemotePlanner", "check_isolable", "close_workers", "describe_planner", "isolated_by_default",
-           "pose_of", "start_isolated"]
+__all__ = ["MAX_WORKERS", "PLANNER_SEED_KEY", "RemotePlanner", "check_isolable", "close_workers", "describe_planner",
+           "isolated_by_default", "planner_seed", "pose_of", "start_isolated", "target_of"]

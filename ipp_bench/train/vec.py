@@ -30,11 +30,9 @@ spends its step writing actions to the pipes.
 from __future__ import annotations
 
 import bisect
-import math
 import multiprocessing as mp
 import signal
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -47,35 +45,12 @@ from ipp_bench.core._threads import available_cpus
 from ipp_bench.core.config import TIME_TOL_S
 
 VEC_ENVS = ("subproc", "dummy")
-#: where the cgroup CPU quota is read (v2 ``cpu.max``, v1 ``cpu/cpu.cfs_quota_us``)
-CGROUP_ROOT = "/sys/fs/cgroup"
-
-
-def cgroup_cpu_quota(root: str | None = None) -> int | None:
-    """The CPUs this process's cgroup may use (its CPU quota, rounded up), or None without a quota.
-
-    A container limited to 2 CPUs on a larger host (``docker --cpus 2``) still sees every host CPU
-    in its affinity mask; only the quota tells how many it may keep busy."""
-    base = Path(root or CGROUP_ROOT)
-    try:
-        quota, period = (base / "cpu.max").read_text().split()[:2]
-        if quota == "max":
-            return None
-        return max(1, math.ceil(int(quota) / int(period)))
-    except (OSError, ValueError):
-        pass
-    try:
-        quota_us = int((base / "cpu" / "cpu.cfs_quota_us").read_text())
-        period_us = int((base / "cpu" / "cpu.cfs_period_us").read_text())
-    except (OSError, ValueError):
-        return None
-    return max(1, math.ceil(quota_us / period_us)) if quota_us > 0 and period_us > 0 else None
 
 
 def worker_cpus() -> int:
-    """The CPUs the training may keep busy: those this process may run on, within its cgroup's quota."""
-    quota = cgroup_cpu_quota()
-    return min(available_cpus(), quota) if quota else available_cpus()
+    """The CPUs the training may keep busy: those this process may run on, within its cgroup's quota
+    (:func:`~ipp_bench.core._threads.available_cpus`)."""
+    return available_cpus()
 
 
 def roadmap_pos_encoding(env: gym.Env) -> np.ndarray:
@@ -214,6 +189,10 @@ def _shard_worker(remote, parent_remote, env_fns: CloudpickleWrapper) -> None:
                 result: Any = (obs, rewards, dones, infos, venv.reset_infos)
             elif cmd == "rollout":  # a whole rollout of this worker's environments (train.rollout)
                 result = rollouts.run(venv, data.var)
+            elif cmd == "half":  # the second half of a PPO minibatch's gradient (train.update)
+                from ipp_bench.train.update import half_gradient
+
+                result = half_gradient(rollouts.policy, data)
             elif cmd == "reset":
                 venv._seeds, venv._options = data
                 result = (venv.reset(), venv.reset_infos)

@@ -92,7 +92,7 @@ def test_the_same_command_resumes_and_a_folder_of_its_own_is_refused(paired, cap
     (["--episodes", "3"], "--episodes 3: the board has 2 per task and planner"),
     (["--seed", "8"], "--seed 8: the board's episode seeds derive from seed 7"),
     (["--env", "budget_s=30"], "--env"),
-    (["--tasks", "Grid15Eval-v1"], "--tasks ipp_bench/Grid15Eval-v1: the board has"),
+    (["--tasks", "Grid15Eval-v1", "Hotspots15Eval-v2"], "--tasks ipp_bench/Hotspots15Eval-v2: not on the board"),
     (["--quick"], "--quick"),
 ])
 def test_arguments_the_board_decides_are_refused_naming_them(reference_copy, tmp_path, capsys, extra, named):

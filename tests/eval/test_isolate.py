@@ -4,6 +4,8 @@ planners and ``--against`` submissions), the same numbers, and run.json and the 
 from __future__ import annotations
 
 import json
+import os
+import sys
 
 import pytest
 from lb_helpers import assert_same_results, results
@@ -11,6 +13,7 @@ from lb_helpers import assert_same_results, results
 import ipp_bench.planners as planners
 import ipp_bench.planners.isolation as isolation
 from ipp_bench.cli import main
+from ipp_bench.eval.plan import default_planners
 from ipp_bench.eval.results_csv import RESULTS_CSV
 from ipp_bench.eval.run_json import ISOLATED_KEY, RUN_JSON
 
@@ -82,11 +85,9 @@ def test_a_team_task_with_isolate_is_refused_in_one_line_before_any_work(tmp_pat
 @pytest.fixture
 def plugin(plugin_site, monkeypatch):
     """A plugin ``theirs`` "installed" on sys.path (a module and its .dist-info), on a fresh suite registry."""
-    plugin_site("their_isolated")
-    registry = planners.PlannerRegistry(planners.BUILT_IN, plugins=True)
-    monkeypatch.setattr(planners, "REGISTRY", registry)
-    monkeypatch.setattr(isolation, "REGISTRY", registry)  # isolation holds its own reference to the suite's
-    yield
+    info = plugin_site("their_isolated")
+    monkeypatch.setattr(planners, "REGISTRY", planners.PlannerRegistry(planners.BUILT_IN, plugins=True))
+    yield info
     isolation.close_workers()
 
 
@@ -98,6 +99,38 @@ def test_a_plugins_planner_is_isolated_by_default(plugin, tmp_path):
     assert (out / RESULTS_CSV).exists()
     line = next(x for x in (out / "leaderboard.md").read_text().splitlines() if x.startswith(FLOWN))
     assert "`theirs`" in line and "`greedy`" not in line
+
+
+def test_planning_and_flying_a_plugins_planner_never_imports_it_beside_the_truth(plugin, tmp_path):
+    """The plugin's module marks every process that imports it: only planner processes do, never this one
+    (the default list, the plan's settings and fingerprint, the start check and the episodes)."""
+    marks = tmp_path / "imported-by"
+    marks.mkdir()
+    module = plugin.parent / "their_isolated" / "__init__.py"
+    module.write_text(f"import os, pathlib\npathlib.Path({str(marks)!r}, str(os.getpid())).touch()\n"
+                      + module.read_text())
+    assert "theirs" in default_planners(log=lambda line: None)
+    assert leaderboard(tmp_path / "lb", "--planners", "theirs", "--quick") == 0
+    assert "their_isolated" not in sys.modules
+    importers = {int(p.name) for p in marks.iterdir()}
+    assert importers and os.getpid() not in importers
+
+
+def test_sweeping_a_plugins_planner_never_imports_it_beside_the_truth(plugin, tmp_path):
+    """A --sweep of a plugin's setting: its points' settings and the report's frontier come from the planner's
+    own process; this one never imports the plugin."""
+    marks = tmp_path / "imported-by"
+    marks.mkdir()
+    module = plugin.parent / "their_isolated" / "__init__.py"
+    module.write_text(f"import os, pathlib\npathlib.Path({str(marks)!r}, str(os.getpid())).touch()\n"
+                      + module.read_text())
+    out = tmp_path / "lb"
+    assert leaderboard(out, "--planners", "greedy", "--sweep", "theirs:index=0,1", "--quick") == 0
+    assert "their_isolated" not in sys.modules
+    importers = {int(p.name) for p in marks.iterdir()}
+    assert importers and os.getpid() not in importers
+    assert {r["planner"] for r in results(out)} == {"greedy", "theirs:index=0", "theirs:index=1"}
+    assert "theirs" in (out / "leaderboard.md").read_text().split("Quality against decision time")[1]
 
 
 def test_a_plugins_planner_on_a_team_task_is_refused_in_one_line(plugin, tmp_path, capsys):

@@ -191,7 +191,7 @@ def test_a_run_starts_no_more_workers_than_its_cpu_quota(tmp_path, monkeypatch, 
     import multiprocessing as mp
     import os
 
-    from ipp_bench.train import vec
+    from ipp_bench.core import _threads
     from ipp_bench.train.args import TrainArgs
 
     if layout == "v2":
@@ -200,8 +200,8 @@ def test_a_run_starts_no_more_workers_than_its_cpu_quota(tmp_path, monkeypatch, 
         (tmp_path / "cpu").mkdir()
         (tmp_path / "cpu" / "cpu.cfs_quota_us").write_text("150000\n")
         (tmp_path / "cpu" / "cpu.cfs_period_us").write_text("100000\n")
-    monkeypatch.setattr(vec, "CGROUP_ROOT", str(tmp_path), raising=False)
-    monkeypatch.setattr(vec, "available_cpus", lambda: 16)
+    monkeypatch.setattr(_threads, "CGROUP_ROOT", str(tmp_path))
+    monkeypatch.setattr(_threads.os, "sched_getaffinity", lambda pid: set(range(16)))
     before = set(mp.active_children())
     venv = make_vec_env(_make, TrainArgs().n_envs, "subproc")
     try:
@@ -212,9 +212,8 @@ def test_a_run_starts_no_more_workers_than_its_cpu_quota(tmp_path, monkeypatch, 
     finally:
         venv.close()
     # without a quota, the affinity mask decides, and never more workers than CPUs
-    assert vec.cgroup_cpu_quota(str(tmp_path / "none")) is None
-    monkeypatch.setattr(vec, "CGROUP_ROOT", str(tmp_path / "none"))
-    monkeypatch.setattr(vec, "available_cpus", lambda: len(os.sched_getaffinity(0)))
+    assert _threads.cgroup_cpu_quota(str(tmp_path / "none")) is None
+    monkeypatch.undo()  # this machine's own affinity mask and quota
     venv = make_vec_env(_make, 16, "subproc")
     try:
         assert len(set(mp.active_children()) - before) <= len(os.sched_getaffinity(0))
@@ -223,7 +222,7 @@ def test_a_run_starts_no_more_workers_than_its_cpu_quota(tmp_path, monkeypatch, 
 
 
 def test_no_cpu_quota_reads_as_none(tmp_path):
-    from ipp_bench.train.vec import cgroup_cpu_quota
+    from ipp_bench.core._threads import cgroup_cpu_quota
 
     (tmp_path / "cpu.max").write_text("max 100000\n")
     assert cgroup_cpu_quota(str(tmp_path)) is None

@@ -138,6 +138,10 @@ def frontier_section(table: EpisodeTable, frontiers: Sequence[Frontier], answers
          "the table."),
         "",
     ]
+    if table.published:
+        parts[-1:] = ["", ("A decision time is the one measured when its row was flown: a published row's on the "
+                           "published board's machine and load, the others' on this run's. Compare them across the "
+                           "two only as far as the machines and loads compare."), ""]
     for f in frontiers:
         parts += [f"### {short_task_id(f.task)}", ""]
         if f.task in pngs:

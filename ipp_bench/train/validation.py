@@ -159,7 +159,32 @@ def validate_checkpoints(paths: list[str], tasks: list[str], episodes: int, json
                                       for t in tasks) + " | |")
     best = max(rows, key=lambda r: r["mean_minus_greedy"])
     print(f"\nbest by the mean over {len(tasks)} tasks: {best['checkpoint']} ({best['mean_minus_greedy']:+.2f})")
+    spread = over_checkpoints(rows, greedy, tasks, times) if len(rows) > 1 else None
+    if spread is not None:
+        print(f"\nover the {len(rows)} checkpoints (e.g. a method's training seeds): per task and report time, the "
+              "mean and standard deviation over checkpoints of the ROI uncertainty reduction minus greedy's [points]")
+        print("| task | " + " | ".join(f"{k.removeprefix('val/unc_red_')}" for k in times) + " |")
+        print("|---" * (len(times) + 1) + "|")
+        for t in tasks:
+            print(f"| {task_key(t)} | " + " | ".join(
+                f"{spread[t][k]['mean']:+.1f} ± {spread[t][k]['sd']:.1f}" if k in spread[t] else "-"
+                for k in times) + " |")
     if json_path:
         write_json_atomic(Path(json_path), {"tasks": tasks, "episodes": episodes, "seed0": VAL_SEED0,
-                                            "greedy": greedy, "rows": rows, "best": best["checkpoint"]})
+                                            "greedy": greedy, "rows": rows, "best": best["checkpoint"],
+                                            "over_checkpoints": spread})
     return 0
+
+
+def over_checkpoints(rows: list[dict[str, Any]], greedy: dict[str, dict[str, float]], tasks: list[str],
+                     times: list[str]) -> dict[str, dict[str, dict[str, float]]]:
+    """Per task and report time, the mean and the sample standard deviation (n - 1) over the checkpoints of
+    each one's figure minus greedy's (rl-baselines3-zoo's benchmark table, over training seeds)."""
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for t in tasks:
+        out[t] = {}
+        for k in times:
+            diffs = [row["figures"][t][k] - greedy[t][k] for row in rows if k in row["figures"][t]]
+            if len(diffs) == len(rows):
+                out[t][k] = {"mean": float(np.mean(diffs)), "sd": float(np.std(diffs, ddof=1)), "n": len(diffs)}
+    return out

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ipp_bench.policies.checkpoint import load_checkpoint
@@ -377,6 +378,39 @@ def test_validate_scores_checkpoints_against_greedy_on_the_held_out_seeds(tmp_pa
     assert main(["--validate", str(tmp_path / "missing.pt")]) == 2
     err = capsys.readouterr().err
     assert "no such checkpoint" in err and err.count("\n") == 1
+
+
+def test_validate_of_several_checkpoints_gives_their_mean_and_sd_minus_greedy(tmp_path, capsys):
+    """``--validate A B C``: per task and report time the mean and the sample sd over the checkpoints of each
+    one's figure minus greedy's, as a table and in the JSON (a method judged over its training seeds)."""
+    import torch
+
+    from ipp_bench.policies.checkpoint import save_checkpoint
+    from ipp_bench.policies.network import AttentionNet, NetConfig
+    from ipp_bench.train.command import main
+
+    paths = []
+    for seed in range(3):
+        torch.manual_seed(seed)
+        paths.append(str(save_checkpoint(AttentionNet(NetConfig(embed_dim=16, n_heads=2, ff_dim=32)),
+                                         tmp_path / f"s{seed}.pt")))
+    figures = tmp_path / "val.json"
+    assert main(["--validate", *paths, "--val-task", "ipp_bench/Grid15-v0", "--eval-episodes", "2",
+                 "--json", str(figures)]) == 0
+    out = capsys.readouterr().out
+    assert "over the 3 checkpoints" in out
+    data = json.loads(figures.read_text())
+    task = "ipp_bench/Grid15-v0"
+    greedy = data["greedy"][task]
+    times = [k for k in greedy if k.startswith("val/unc_red_")]
+    assert times
+    for k in times:
+        diffs = np.array([row["figures"][task][k] - greedy[k] for row in data["rows"]])
+        cell = data["over_checkpoints"][task][k]
+        assert cell["mean"] == pytest.approx(diffs.sum() / 3, abs=1e-12)
+        assert cell["sd"] == pytest.approx(np.sqrt(((diffs - diffs.mean()) ** 2).sum() / 2), abs=1e-12)
+        assert f"{cell['mean']:+.1f} ± {cell['sd']:.1f}" in out
+    assert len({json.dumps(row["figures"][task]) for row in data["rows"]}) > 1  # the networks differ
 
 
 def test_a_warm_start_alone_may_mix_map_sizes_and_weigh_a_task_twice():

@@ -423,7 +423,7 @@ def cmd_power(args: argparse.Namespace) -> int:
                              f"valid are {planners}")
     except ValueError as err:
         return _error(str(err))
-    cells = power_rule(rows, reference, h)
+    cells = power_rule(rows, reference, h, networks=board.networks)
     if not cells:
         return _error(f"{args.folder}: no planner shares an episode with {reference}")
     print(board.describe())

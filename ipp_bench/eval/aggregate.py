@@ -40,6 +40,10 @@ the probability of improvement would ignore it and give wider intervals). With o
 task this is rliable's ``StratifiedBootstrap``. Percentile intervals, :data:`N_RESAMPLES` resamples,
 a fixed seed: the same results.csv always gives the same numbers.
 
+**A method over several networks** (:mod:`ipp_bench.eval.methods`): its intervals come from a two-level
+resampling (:func:`two_level_indices`): the networks (training seeds) are drawn with replacement, then the
+episodes within each drawn network; with one network it is the resampling above, exactly.
+
 **Ties.** A planner's rank is 1 + the number of planners that beat it with a probability of
 improvement whose interval lies above 0.5; planners with the same rank are tied (the data cannot
 separate them). References that read the truth (the ``oracle``) are never ranked.
@@ -59,7 +63,7 @@ from __future__ import annotations
 import inspect
 import math
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -93,10 +97,41 @@ _BATCH_VALUES = 4e6  # at most this many pooled scores per batch (bounds the mem
 _RNG_ARG = "rng" if "rng" in inspect.signature(stats.bootstrap).parameters else "random_state"
 
 
+def two_level_indices(rng: np.random.Generator, groups: Sequence[Any] | None, n: int,
+                      n_resamples: int) -> np.ndarray:
+    """``(n_resamples, n)`` indices of resampled episodes. Without ``groups`` (or one group): ``n`` episodes
+    drawn with replacement, ``rng.integers(0, n, (n_resamples, n))``. With ``groups`` (per episode its network
+    of a method: the two-level, hierarchical bootstrap over training seeds): per resample the G networks are
+    drawn with replacement, and the j-th drawn network fills network j's places (as many episodes as network j
+    flew) with its own episodes drawn with replacement."""
+    if groups is None:
+        return rng.integers(0, n, size=(n_resamples, n))
+    keys = [g.item() if isinstance(g, np.generic) else g for g in groups]  # ints, or tuples of ints
+    labels = sorted(set(keys))
+    if len(keys) != n:
+        raise ValueError(f"{len(keys)} groups for {n} episodes")
+    where = {g: i for i, g in enumerate(labels)}
+    slot = np.array([where[g] for g in keys])
+    if len(labels) < 2:
+        return rng.integers(0, n, size=(n_resamples, n))
+    members = [np.flatnonzero(slot == g) for g in range(len(labels))]
+    sizes = np.array([len(m) for m in members])
+    table = np.zeros((len(labels), sizes.max()), dtype=np.int64)
+    for g, m in enumerate(members):
+        table[g, :len(m)] = m
+    drawn = rng.integers(0, len(labels), size=(n_resamples, len(labels)))[:, slot]  # (R, n): each place's network
+    return table[drawn, rng.integers(0, sizes[drawn])]
+
+
 def bootstrap_ci(values: Sequence[float], n_resamples: int = N_RESAMPLES, level: float = LEVEL,
-                 seed: int = BOOTSTRAP_SEED) -> tuple[float, float | None, float | None]:
+                 seed: int = BOOTSTRAP_SEED, groups: Sequence[Any] | None = None
+                 ) -> tuple[float, float | None, float | None]:
     """Mean of ``values`` and its bootstrap interval ``(mean, low, high)`` (``scipy.stats.bootstrap``,
     :data:`BOOTSTRAP_METHOD`, seeded: reproducible).
+
+    ``groups``: per value, the network of a method that flew it: then the interval is the two-level bootstrap's
+    (:func:`two_level_indices`: networks, then episodes within each; percentile, the same resamples and seed).
+    With one group (or None) it is the plain bootstrap above, exactly.
 
     One value has no interval: ``(v, None, None)``. Equal values give ``(v, v, v)``.
     """
@@ -108,6 +143,15 @@ def bootstrap_ci(values: Sequence[float], n_resamples: int = N_RESAMPLES, level:
         return mean, None, None
     if np.all(x == x[0]):
         return mean, mean, mean
+    if groups is not None and len(set(groups)) > 1:
+        if len(groups) != x.size:
+            raise ValueError(f"{len(groups)} groups for {x.size} values")
+        rng = np.random.default_rng(seed)
+        means = np.concatenate([x[two_level_indices(rng, groups, x.size, min(_BATCH, n_resamples - done))].mean(axis=1)
+                                for done in range(0, n_resamples, _BATCH)])
+        alpha = 100 * (1 - level) / 2
+        low, high = np.percentile(means, [alpha, 100 - alpha])
+        return mean, float(low), float(high)
     res = stats.bootstrap((x,), np.mean, confidence_level=level, n_resamples=n_resamples,
                           method=BOOTSTRAP_METHOD, **{_RNG_ARG: np.random.default_rng(seed)})
     return mean, float(res.confidence_interval.low), float(res.confidence_interval.high)
@@ -314,9 +358,16 @@ def profile_taus(board: Board, n: int = 61) -> np.ndarray:
 
 
 def estimate(board: Board, n_resamples: int = N_RESAMPLES, level: float = LEVEL, seed: int = BOOTSTRAP_SEED,
-             taus: np.ndarray | None = None) -> AggregateEstimates:
+             taus: np.ndarray | None = None, networks: Mapping[str, Mapping[int, int]] | None = None
+             ) -> AggregateEstimates:
     """IQM, probability of improvement and performance profile of every planner of ``board``, with
-    stratified bootstrap intervals (episodes resampled per task, jointly for every planner and time)."""
+    stratified bootstrap intervals (episodes resampled per task, jointly for every planner and time).
+
+    ``networks``: per method (a planner flown over several networks), each seed's network. Every estimate of
+    a method (its IQMs and profile, a probability of improvement it is part of) then takes its interval from a
+    second, two-level resampling (:func:`two_level_indices`, per task: networks, then episodes within each,
+    jointly for every planner, the episodes grouped by the networks of every method); every other estimate
+    keeps the plain one's, exactly."""
     if not board.blocks or not board.planners:
         raise ValueError("the board has no scores to aggregate")
     taus = profile_taus(board) if taus is None else np.asarray(taus, dtype=np.float64)
@@ -372,17 +423,28 @@ def estimate(board: Board, n_resamples: int = N_RESAMPLES, level: float = LEVEL,
              for j, t in enumerate(all_times)},
             poi, taus, {p: (point[3][i, 0], None, None) for i, p in enumerate(names)}, {p: 1 for p in ranked},
             n_resamples, level, intervals=False)
-    rng = np.random.default_rng(seed)
-    draws = [[], [], [], []]
-    done = 0
-    while done < n_resamples:
-        r = min(batch, n_resamples - done)
-        indices = [rng.integers(0, len(s), size=(r, len(s))) for s in board.seeds]
-        for acc, part in zip(draws, statistics(indices)):
-            acc.append(part)
-        done += r
-    boot_iqm, boot_time, boot_poi, boot_profile = (np.concatenate(d, axis=-2 if i == 3 else -1)
-                                                   for i, d in enumerate(draws))
+    def resampled(groups: list[Sequence[Any] | None]):
+        rng = np.random.default_rng(seed)
+        draws = [[], [], [], []]
+        done = 0
+        while done < n_resamples:
+            r = min(batch, n_resamples - done)
+            indices = [two_level_indices(rng, g, len(s), r) for g, s in zip(groups, board.seeds)]
+            for acc, part in zip(draws, statistics(indices)):
+                acc.append(part)
+            done += r
+        return [np.concatenate(d, axis=-2 if i == 3 else -1) for i, d in enumerate(draws)]
+
+    boot_iqm, boot_time, boot_poi, boot_profile = resampled([None] * len(board.seeds))
+    methods = [p for p in names if p in (networks or {}) and len(set(networks[p].values())) > 1]
+    if methods:  # the method's estimates from the two-level resampling, every other one's kept
+        groups = [[tuple(networks[p][s] for p in methods) for s in seeds] for seeds in board.seeds]
+        two = resampled(groups)
+        mine = np.array([p in methods for p in names])
+        boot_iqm[mine], boot_time[:, mine], boot_profile[mine] = two[0][mine], two[1][:, mine], two[3][mine]
+        for q, (a, b) in enumerate(pairs):
+            if mine[a] or mine[b]:
+                boot_poi[q] = two[2][q]
     alpha = 100 * (1 - level) / 2
 
     def interval(pt: float, samples: np.ndarray) -> Estimate:
@@ -412,6 +474,7 @@ __all__ = [
     "Board",
     "bootstrap_ci",
     "estimate",
+    "two_level_indices",
     "iqm",
     "normalised_board",
     "performance_profile",

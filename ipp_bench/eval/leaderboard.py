@@ -28,6 +28,7 @@ from ..envs import load_task, short_task_id
 from .executors import default_backend, make_executor
 from .jobs import JobError, JobFailed
 from .machine import describe_machine
+from .methods import METHODS_KEY
 from .plan import EpisodeJob, Plan, report_times
 from .power import POWER_HALF_WIDTH
 from .results import ResultsStore, copy_published
@@ -66,7 +67,8 @@ def run_job(job: EpisodeJob) -> list[dict[str, Any]]:
     try:
         if job.task_file is not None:  # a user's task: registered in this process too
             load_task(job.task_file)
-        result = run_episode(job.task, job.planner, job.seed, isolate=job.isolate, **dict(job.env_overrides))
+        result = run_episode(job.task, job.flies or job.planner, job.seed, isolate=job.isolate,
+                             **dict(job.env_overrides))
     except Exception as err:
         raise JobError(one_line(err)) from None
     expected = report_times(job.task, dict(job.env_overrides))
@@ -82,16 +84,27 @@ def run_job(job: EpisodeJob) -> list[dict[str, Any]]:
     return [{"task": job.task, "planner": job.planner, "seed": job.seed, **r, **common} for r in result.report]
 
 
-def published_isolated(plan: Plan) -> list[str]:
-    """The planners whose rows the published board ``plan`` is paired with records as flown isolated."""
+def published_meta(plan: Plan) -> dict[str, Any]:
+    """The run.json of the published board ``plan`` is paired with ({} without one)."""
     if plan.against is None:
-        return []
+        return {}
     try:
         meta = json.loads((Path(plan.against["folder"]) / RUN_JSON).read_text())
     except (OSError, ValueError):  # read and verified while planning: gone since, the report just cannot say
-        return []
-    isolated = meta.get(ISOLATED_KEY) if isinstance(meta, dict) else None
+        return {}
+    return meta if isinstance(meta, dict) else {}
+
+
+def published_isolated(plan: Plan) -> list[str]:
+    """The planners whose rows the published board ``plan`` is paired with records as flown isolated."""
+    isolated = published_meta(plan).get(ISOLATED_KEY)
     return [str(p) for p in isolated] if isinstance(isolated, list) else []
+
+
+def board_methods(plan: Plan) -> dict[str, Any]:
+    """The methods of the board's report (run.json's record; with ``--against``, the published board's too)."""
+    published = (published_meta(plan).get("fingerprint") or {}).get(METHODS_KEY)
+    return {**(published if isinstance(published, dict) else {}), **plan.fingerprint().get(METHODS_KEY, {})}
 
 
 def one_line(err: BaseException) -> str:
@@ -137,7 +150,8 @@ class _Progress:
         self.count += 1
         last = rows[-1]
         task = short_task_id(job.task)
-        text = (f"{task} {job.planner} seed={job.seed}: "
+        network = f" network {job.network + 1}" if job.network is not None else ""
+        text = (f"{task} {job.planner}{network} seed={job.seed}: "
                 f"uncertainty reduction {last['uncertainty_reduction_pct']:.1f}%, "
                 f"RMSE reduction {last['rmse_reduction_pct']:.1f}% "
                 f"at {last['time_s']:g} s, {last['decisions']} decisions, {last['episode_wall_s']:.1f} s")
@@ -242,7 +256,8 @@ def run_leaderboard(plan: Plan, out_dir: str | Path, backend: str | None = None,
                                   published_from=plan.against["folder"] if plan.against else None, power=power,
                                   published_unverified=bool(plan.against and plan.against.get("unverified")),
                                   made_on=[describe_machine(m) for m in store.machines],
-                                  isolated=[*store.isolated, *published_isolated(plan)])
+                                  isolated=[*store.isolated, *published_isolated(plan)],
+                                  methods=board_methods(plan), seeds=plan.seeds)
     wall = time.perf_counter() - t0
     return Summary(Path(out_dir), len(jobs), skipped, len(todo), wall, files)
 

@@ -70,13 +70,14 @@ def method_label(planner: str, published: frozenset[str] | set[str] = frozenset(
     return f"{text} (published)" if planner in published else text
 
 
-def _difference_cell(mine: dict[int, float], theirs: dict[int, float]) -> str:
-    """``mine`` minus ``theirs`` on the seeds both have: mean [paired interval], episodes won / paired."""
+def _difference_cell(mine: dict[int, float], theirs: dict[int, float], groups=None) -> str:
+    """``mine`` minus ``theirs`` on the seeds both have: mean [paired interval], episodes won / paired.
+    ``groups(seeds)``: the networks of a method among the two per seed (its interval is then two-level)."""
     seeds = sorted(set(mine) & set(theirs))
     if not seeds:
         return "–"
     d = np.array([mine[s] - theirs[s] for s in seeds])
-    mean, low, high = bootstrap_ci(d)
+    mean, low, high = bootstrap_ci(d, groups=groups(seeds) if groups else None)
     interval = "" if low is None else f" [{low:+.1f}, {high:+.1f}]"
     return f"{mean:+.1f}{interval}, won {int(np.sum(d > 0))}/{len(seeds)}"
 
@@ -105,7 +106,8 @@ def _pairs_table(table: EpisodeTable, pairs: Sequence[tuple[str, str]], key: str
                 continue
             row = [f"**{short_task_id(task)}**" if first else "", method_label((a, b)[named], table.published)]
             first = False
-            row += [_difference_cell(table.by_seed(task, a, t, key), table.by_seed(task, b, t, key)) for t in times]
+            row += [_difference_cell(table.by_seed(task, a, t, key), table.by_seed(task, b, t, key),
+                                     lambda seeds, a=a, b=b: table.groups(a, seeds, b)) for t in times]
             lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
@@ -125,9 +127,10 @@ def team_section(table: EpisodeTable, key: str = "uncertainty_reduction_pct") ->
                   + [f"{n} UAVs - one, at {t:g} s" for t in same])
         lines = ["| " + " | ".join(header) + " |", "|:--" + "|--:" * (len(header) - 1) + "|"]
         for p in planners:
-            cells = [_difference_cell(table.by_seed(team, p, t, key), table.by_seed(single, p, n * t, key))
+            groups = lambda seeds, p=p: table.groups(p, seeds)  # noqa: E731
+            cells = [_difference_cell(table.by_seed(team, p, t, key), table.by_seed(single, p, n * t, key), groups)
                      for t in flight]
-            cells += [_difference_cell(table.by_seed(team, p, t, key), table.by_seed(single, p, t, key))
+            cells += [_difference_cell(table.by_seed(team, p, t, key), table.by_seed(single, p, t, key), groups)
                       for t in same]
             lines.append("| " + " | ".join([method_label(p, table.published)] + cells) + " |")
         parts += [

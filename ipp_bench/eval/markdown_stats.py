@@ -38,7 +38,7 @@ def aggregate_estimates(table: EpisodeTable) -> tuple[agg_stats.Board, agg_stats
     board = agg_stats.normalised_board(table.rows, planners=table.planners, tasks=table.tasks)
     if not board.blocks or not board.planners:
         return board, None
-    return board, agg_stats.estimate(board)
+    return board, agg_stats.estimate(board, networks=table.networks)
 
 
 def _anchor_text(anchor: str, score: int) -> str:
@@ -166,7 +166,7 @@ def power_section(table: EpisodeTable, reference: str, half_width: float = POWER
     """The power rule's table: per task and report time, the largest sd of a paired difference
     (planner minus ``reference``), the episodes, the largest half-width reached and the episodes
     the rule asks for; then the count per task."""
-    cells = power.power_rule(table.rows, reference, half_width)
+    cells = power.power_rule(table.rows, reference, half_width, networks=table.networks)
     if not cells:
         return ""
     by_time: dict[tuple[str, float], list[power.PowerCell]] = defaultdict(list)

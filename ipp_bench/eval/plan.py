@@ -30,6 +30,8 @@ from ..envs.registry import is_team_task, resolve_task
 from ..planners import make_config, make_planner, parse_spec, planner_names
 from ..planners.isolation import describe_planner, isolated_by_default
 from .fingerprint import normalised_overrides, planner_fingerprint, task_config_record
+from .methods import METHODS_KEY, methods_record, network_index, planner_members
+from .plan_checks import check_distinct_episodes, check_episode_starts, check_isolation
 
 SEED_SCHEME = "SeedSequence(seed).spawn(episodes)[i] -> uint31"
 DEFAULT_EPISODES = 20
@@ -152,6 +154,10 @@ class EpisodeJob:
     env_overrides: tuple[tuple[str, Any], ...] = ()
     task_file: str | None = None  # a user's task file (not of the suite): a worker loads it first
     isolate: bool = False  # fly the planner in a process of its own (:mod:`ipp_bench.planners.isolation`)
+    #: a method's episode: the spec of the one network that flies it (:mod:`ipp_bench.eval.methods`); rows
+    #: carry ``planner``, the method's spec
+    flies: str | None = None
+    network: int | None = None  # that network's place (0-based) in the method's list
 
     @property
     def key(self) -> tuple[str, str, int]:
@@ -175,6 +181,8 @@ class Plan:
             its ``folder``, ``planners``, ``episodes`` and ``results_sha256``; None for a board of its own.
         isolated: the planners flown in a process of their own (:mod:`ipp_bench.planners.isolation`), in table
             order. Not part of the fingerprint: isolation changes no number.
+        members: per method (a planner spec naming several networks, :mod:`ipp_bench.eval.methods`), its
+            networks in order: (name, the spec that flies it alone); episode i flies network i mod k.
     """
 
     tasks: tuple[str, ...]
@@ -187,6 +195,7 @@ class Plan:
     planner_fingerprints: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
     against: dict[str, Any] | None = None
     isolated: tuple[str, ...] = ()
+    members: dict[str, tuple[tuple[str, str], ...]] = dataclasses.field(default_factory=dict)
 
     def fingerprint(self) -> dict[str, Any]:
         """The arguments that decide the numbers (order-insensitive where order does not matter), as
@@ -204,6 +213,8 @@ class Plan:
             "planner_fingerprints": {p: self.planner_fingerprints[p] for p in sorted(self.planner_fingerprints)},
             "seed_scheme": SEED_SCHEME,
         }
+        if self.members:  # only on a board that flies a method: older folders' fingerprints stay as they are
+            record[METHODS_KEY] = methods_record(self.members)
         if self.against is not None:  # the published rows the report pairs with (where they lie aside)
             record["against"] = {k: v for k, v in self.against.items() if k != "folder"}
         return json.loads(json.dumps(record, default=str))
@@ -220,7 +231,15 @@ class Plan:
         cells = {t: task_config(t, self.env_overrides).grid.n_cells for t in self.tasks}
         pairs = sorted(((t, p) for t in self.tasks for p in self.planners),
                        key=lambda tp: (-cells[tp[0]], -SLOW_PLANNERS.get(parse_spec(tp[1])[0], 0)))
-        return [EpisodeJob(t, p, s, overrides, files[t], p in self.isolated) for s in self.seeds for t, p in pairs]
+        jobs = []
+        for i, s in enumerate(self.seeds):
+            for t, p in pairs:
+                job = EpisodeJob(t, p, s, overrides, files[t], p in self.isolated)
+                if p in self.members:  # a method: this episode's network flies it (methods.SPLIT_RULE)
+                    n = network_index(i, len(self.members[p]))
+                    job = dataclasses.replace(job, flies=self.members[p][n][1], network=n)
+                jobs.append(job)
+        return jobs
 
 
 def _freeze(value: Any) -> Any:
@@ -283,7 +302,7 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
     specs = [*specs, *sweeps]
     if not specs:
         raise ValueError("no planner can be built: pass --planners")
-    resolved, fingerprints, quick_changed, built = [], {}, quick and episodes is None, {}
+    resolved, fingerprints, quick_changed, built, members = [], {}, quick and episodes is None, {}, {}
     for i, spec in enumerate(specs):
         name = parse_spec(spec)[0]
         apart = isolate or isolated_by_default(spec)  # built in its own process only, never in this one
@@ -298,6 +317,10 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
         if fingerprint:
             fingerprints[canon] = fingerprint
         resolved.append(canon)
+        members[canon] = planner_members(canon)
+        if members[canon]:  # a method: each network starts on every task in the check below, never the method
+            del built[canon]
+            built.update({alone: None if apart else make_planner(alone) for _, alone in members[canon]})
     _no_duplicates("planner", resolved)
     isolated = tuple(resolved) if isolate else tuple(p for p in resolved if isolated_by_default(p))
     check_isolation(task_ids, isolated, isolate_why if isolate else
@@ -306,74 +329,11 @@ def make_plan(tasks: Sequence[str] | None = None, planners: Sequence[str] | None
         episodes = QUICK_EPISODES if quick else DEFAULT_EPISODES
     seeds = episode_seeds(seed, episodes)
     for t in task_ids:
-        _check_distinct_episodes(t, seeds, env_overrides)
+        check_distinct_episodes(t, seeds, env_overrides)
     if check_start:
         check_episode_starts(task_ids, built, seeds[0], env_overrides)
     return Plan(tuple(task_ids), tuple(resolved), int(episodes), int(seed), tuple(seeds), env_overrides,
-                quick_changed, fingerprints, isolated=isolated)
-
-
-def check_isolation(tasks: Sequence[str], isolated: Sequence[str], why: str) -> None:
-    """Refuse, in one line naming task and planner, a planner to isolate on a task that cannot be flown
-    isolated: a team task (one planner per UAV shares the team's belief) or a MuJoCo deployment (its clock).
-    ``why``: what isolates it (``--isolate``, a plugin, an ``--against`` submission); a planner isolated by
-    default must never run beside the truth, so the run is refused rather than flown in-process."""
-    if not isolated:
-        return
-    for t in tasks:
-        if is_team_task(t):
-            reason = "a team task (one planner per UAV shares the team's belief)"
-        elif "deployment" in task_spec(t).tags:
-            reason = "a MuJoCo deployment (its clock runs in the world's process)"
-        else:
-            continue
-        raise ValueError(f"task {t}, planner {isolated[0]}: cannot be flown isolated, in a process of its own "
-                         f"({why}): {t} is {reason}; leave that task out"
-                         + (" or drop --isolate" if why == "--isolate" else ""))
-
-
-def _check_distinct_episodes(task: str, seeds: Sequence[int], env_overrides: dict[str, Any]) -> None:
-    """Refuse seeds that play the same episode twice on ``task`` (its ``episode_seeds`` range is
-    narrower than the run): repeated episodes would be bootstrapped as independent ones."""
-    lo, hi = task_config(task, env_overrides).mission.episode_seeds
-    played = {lo + s % (hi - lo) for s in seeds}
-    if len(played) < len(seeds):
-        raise ValueError(
-            f"task {task}: its episode_seeds [{lo}, {hi}) play {len(played)} distinct episodes of the {len(seeds)} "
-            f"asked for (seed s plays {lo} + s mod {hi - lo}); repeated episodes are not independent samples: "
-            "widen episode_seeds or lower --episodes")
-
-
-def check_episode_starts(tasks: Sequence[str], planners: dict[str, Any], seed: int,
-                         env_overrides: dict[str, Any]) -> None:
-    """Reset every task's env for episode ``seed`` and every planner on it (no decision); a planner given as
-    None is isolated: its spec starts in the planner's own process
-    (:func:`~ipp_bench.planners.isolation.start_isolated`), never in this one.
-
-    Raises:
-        ValueError: naming task and planner: a start that pays for no first move, a planner that
-            refuses the task (an attention checkpoint made for another ``pe_dim``), ...
-    """
-    from ..envs import make_env
-    from ..planners.episode import is_team_env, start_episode
-
-    for task in tasks:
-        env = make_env(task, **env_overrides)
-        try:
-            try:
-                env.reset(seed=int(seed))
-            except ValueError as err:
-                raise ValueError(f"task {task}: {err}") from None
-            for spec, planner in planners.items():
-                try:  # a team task builds one planner per UAV from the spec
-                    started, _ = start_episode(env, spec if is_team_env(env) or planner is None else planner, seed,
-                                               isolate=planner is None)
-                    if planner is None:
-                        started.finish()
-                except ValueError as err:
-                    raise ValueError(f"task {task}, planner {spec}: {err}") from None
-        finally:
-            env.close()
+                quick_changed, fingerprints, isolated=isolated, members={p: m for p, m in members.items() if m})
 
 
 def _no_duplicates(kind: str, items: Sequence[str]) -> None:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -84,12 +84,23 @@ def paired_differences(rows: Iterable[dict[str, Any]], reference: str, key: str 
 
 
 def power_rule(rows: Iterable[dict[str, Any]], reference: str, half_width: float = POWER_HALF_WIDTH,
-               key: str = SCORE_KEY) -> list[PowerCell]:
-    """The power rule (module docstring) for every planner minus ``reference``, task and report time."""
+               key: str = SCORE_KEY, networks: Mapping[str, Mapping[int, int]] | None = None) -> list[PowerCell]:
+    """The power rule (module docstring) for every planner minus ``reference``, task and report time.
+    ``networks``: per method, each seed's network: its paired interval is the two-level bootstrap's."""
+    rows = list(rows)
+    networks = networks or {}
+    flown: dict[tuple[str, float, str], list[int]] = defaultdict(list)
+    for r in rows:
+        flown[(r["task"], float(r["time_s"]), r["planner"])].append(int(r["seed"]))
     cells = []
     for (task, t, p), d in paired_differences(rows, reference, key).items():
         sd = float(np.std(d, ddof=1)) if d.size > 1 else float("nan")
-        _, lo, hi = bootstrap_ci(d)
+        groups = None
+        methods = [m for m in (p, reference) if m in networks]
+        if methods:  # the seeds paired_differences pairs, in its order
+            seeds = sorted(set(flown[(task, t, p)]) & set(flown[(task, t, reference)]))
+            groups = [tuple(networks[m][s] for m in methods) for s in seeds]
+        _, lo, hi = bootstrap_ci(d, groups=groups)
         reached = None if lo is None else float(max(d.mean() - lo, hi - d.mean()))
         needed = episodes_needed(sd, half_width) if math.isfinite(sd) else 2
         cells.append(PowerCell(task, t, p, int(d.size), sd, reached, needed, lo, hi))

@@ -39,6 +39,7 @@ from .aggregate import BOOTSTRAP_METHOD, BOOTSTRAP_SEED, LEVEL, N_RESAMPLES
 from .frontier import Frontier, headroom, infer_sweeps, match_answers, task_frontier
 from .markdown import NO_INTERVAL, REDUCTIONS, final_table, markdown_table, paired_table, team_section, versus_table
 from .markdown_frontier import frontier_section
+from .markdown_methods import methods_section
 from .markdown_stats import aggregate_estimates, aggregate_section, power_section
 from .plots import (
     PROFILE_PNG,
@@ -134,6 +135,8 @@ def markdown_report(table: EpisodeTable, command: str | None = None, quick: bool
             "indicate the room that knowing where the ROI lies opens above the planners that cannot; they "
             "are no upper bound (a planner that looks further ahead can beat them).")
     parts += [legend, "", markdown_table(table)]
+    if table.networks:
+        parts += [methods_section(table)]
     flown = [p for p in table.planners if p in set(isolated)]
     if flown:
         parts += [isolated_note(flown, table.published), ""]
@@ -218,7 +221,8 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
                  log: Callable[[str], None] | None = None, published_csv: str | Path | None = None,
                  published_from: str | None = None, power: float | None = POWER_HALF_WIDTH,
                  made_on: Sequence[str] = (), published_unverified: bool = False,
-                 isolated: Sequence[str] = ()) -> list[Path]:
+                 isolated: Sequence[str] = (), methods: Mapping[str, Mapping] | None = None,
+                 seeds: Sequence[int] = ()) -> list[Path]:
     """Write ``leaderboard.md``, ``performance_profile.png``, ``curves_<task>.png``,
     ``runtime_per_decision.png`` and, where the board holds a sweep, ``frontier_<task>.png`` from a results.csv.
 
@@ -232,6 +236,9 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
         made_on: where the rows were made (one line per machine), said in one line at the top.
         published_unverified: the published rows were used unverified (``--trust-unverified``).
         isolated: the planners (this run's or the published board's) whose rows flew isolated.
+        methods, seeds: run.json's record of the planners flown over several networks and the board's seed
+            list (:mod:`ipp_bench.eval.methods`): each row's network, for the two-level intervals and the
+            per-network section.
 
     Returns:
         The paths written.
@@ -245,7 +252,7 @@ def write_report(results_csv: str | Path, out_dir: str | Path, tasks: Sequence[s
         rows = theirs + rows
         if planners is not None:
             planners = published + [p for p in planners if p not in published]
-    table = EpisodeTable(rows, tasks, planners, published=published)
+    table = EpisodeTable(rows, tasks, planners, published=published, methods=methods, seeds=seeds)
     estimates = aggregate_estimates(table)
     frontiers = frontiers_of(table, reference)
     pngs: dict[str, str] = {}

@@ -14,12 +14,13 @@ order planners are shown in (:func:`ordered`), and which tasks pair a team with 
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ..core.mission import REPORT_KEYS
 from ..planners import is_reference
 from .aggregate import bootstrap_ci
+from .methods import networks_by_seed
 
 #: the planner every other is paired with when ``--reference`` is not given
 DEFAULT_REFERENCE = "greedy"
@@ -33,11 +34,18 @@ class EpisodeTable:
         tasks, planners: the order of the report (default: as they first appear in ``rows``).
         published: planners whose rows were copied from a published board (``--against``), not
             flown here.
+        methods: run.json's record of the methods (planners flown over several networks,
+            :mod:`ipp_bench.eval.methods`) and ``seeds`` the board's seed list, from which each row's network
+            follows: a method's intervals resample its networks, then the episodes within each.
     """
 
     def __init__(self, rows: Sequence[dict[str, Any]], tasks: Sequence[str] | None = None,
-                 planners: Sequence[str] | None = None, published: Sequence[str] = ()):
+                 planners: Sequence[str] | None = None, published: Sequence[str] = (),
+                 methods: Mapping[str, Mapping[str, Any]] | None = None, seeds: Sequence[int] = ()):
         self.rows = list(rows)
+        self.methods = {p: dict(m) for p, m in (methods or {}).items()}
+        #: per method, each seed's network (0-based)
+        self.networks = networks_by_seed(self.methods, seeds)
         self.published = frozenset(published)
         self.tasks = list(tasks) if tasks else list(dict.fromkeys(r["task"] for r in rows))
         self.planners = list(planners) if planners else list(dict.fromkeys(r["planner"] for r in rows))
@@ -59,9 +67,23 @@ class EpisodeTable:
             self.times[task].sort()
 
     def stat(self, task: str, planner: str, time_s: float, key: str) -> tuple[float, float, float] | None:
-        """Mean and bootstrap interval of ``key`` over the episodes (None: no episode)."""
+        """Mean and bootstrap interval of ``key`` over the episodes (None: no episode); a method's two-level."""
         v = self.values.get((task, planner, time_s, key))
-        return bootstrap_ci(v) if v else None
+        if not v:
+            return None
+        if planner not in self.networks:
+            return bootstrap_ci(v)
+        by_seed = self._by_seed[(task, planner, time_s, key)]
+        seeds = sorted(by_seed)
+        return bootstrap_ci([by_seed[s] for s in seeds], groups=self.groups(planner, seeds))
+
+    def groups(self, planner: str, seeds: Sequence[int], other: str | None = None) -> list[tuple[int, ...]] | None:
+        """Per seed, the network of ``planner`` (and of ``other``) that flew it where either is a method: the
+        groups of a two-level bootstrap (None: neither is)."""
+        methods = [p for p in (planner, other) if p in self.networks]
+        if not methods:
+            return None
+        return [tuple(self.networks[p][s] for p in methods) for s in seeds]
 
     def by_seed(self, task: str, planner: str, time_s: float, key: str) -> dict[int, float]:
         """Per-episode values keyed by seed (for pairing planners on the same episodes)."""
@@ -70,7 +92,12 @@ class EpisodeTable:
     def runtime_stat(self, task: str, planner: str) -> tuple[float, float, float] | None:
         """Mean and bootstrap interval of the runtime per decision over the episodes (None: no episode)."""
         v = self.runtime.get((task, planner))
-        return bootstrap_ci(list(v.values())) if v else None
+        if not v:
+            return None
+        if planner not in self.networks:
+            return bootstrap_ci(list(v.values()))
+        seeds = sorted(v)
+        return bootstrap_ci([v[s] for s in seeds], groups=self.groups(planner, seeds))
 
     def all_times(self) -> list[float]:
         """Every report time of every task, sorted."""

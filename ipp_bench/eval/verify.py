@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.config import TIME_TOL_S
+from .methods import METHODS_KEY, check_methods_record, networks_by_seed
 from .results_csv import (
     RESULTS_CSV,
     ROW_DIGEST_HEX,
@@ -85,6 +86,11 @@ class Board:
     @property
     def planners(self) -> list[str]:
         return list(self.meta["planners"])
+
+    @property
+    def networks(self) -> dict[str, dict[int, int]]:
+        """Per method (a planner flown over several networks), each seed's network (0-based)."""
+        return networks_by_seed(self.meta["fingerprint"].get(METHODS_KEY), self.meta["seeds"])
 
     def describe(self) -> str:
         """One line for a log: what was checked."""
@@ -139,6 +145,10 @@ def _read_meta(run_json: Path) -> dict[str, Any]:
         raise _field(run_json, "seeds", f"is {json.dumps(seeds)[:80]}: expected a list of distinct integers")
     if "episodes" in meta and meta["episodes"] != len(seeds):
         raise _field(run_json, "episodes", f"is {json.dumps(meta['episodes'])}, but it records {len(seeds)} seeds")
+    if METHODS_KEY in meta["fingerprint"]:
+        problem = check_methods_record(meta["fingerprint"][METHODS_KEY], meta["planners"])
+        if problem:
+            raise _field(run_json, f"fingerprint.{METHODS_KEY}", problem)
     return meta
 
 

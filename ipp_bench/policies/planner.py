@@ -1,8 +1,9 @@
 """``attention``: the trained attention policy of the paper as a roadmap planner.
 
 Loads the checkpoint shipped in the package (``ipp_bench/policies/checkpoints/attention_v6.pt``)
-or ``checkpoint=PATH`` (an ``export.pt`` of an ``ipp-bench train`` run), and picks the neighbour
-with the highest probability (``sample=true``: draws from the policy instead, seeded per episode;
+or ``checkpoint=PATH`` (an ``export.pt`` of an ``ipp-bench train`` run; ``A.pt+B.pt``: a method over several
+networks, which the leaderboard flies one network per episode, :mod:`ipp_bench.policies.networks`), and picks
+the neighbour with the highest probability (``sample=true``: draws from the policy instead, seeded per episode;
 ``samples=K``: flies the first leg of the best of K flights imagined on the belief's covariance,
 CAtNIPP's test-time trajectory sampling, see :class:`AttentionConfig`).
 Needs torch (``pip install "ipp-bench[train]"``); the planner registry imports it lazily. It
@@ -56,7 +57,9 @@ MAX_SAMPLES = 256  # [-] imagined trajectories per decision, at most
 class AttentionConfig:
     """Settings of the attention planner."""
 
-    checkpoint: str = ""  # path of an exported checkpoint (.pt); "" = the shipped one
+    # path of an exported checkpoint (.pt); "" = the shipped one. A.pt+B.pt+...: a method over several trained
+    # networks (training seeds), flown by the leaderboard over its episodes (ipp_bench.policies.networks)
+    checkpoint: str = ""
     sample: bool = False  # draw the action from the policy instead of taking the argmax
     device: str = "cpu"  # torch device of the network
     threads: int = 1  # torch intra-op threads to set (at most the CPUs this process may run on); 0 = torch's own
@@ -88,6 +91,11 @@ class AttentionConfig:
     avoid_from_s: float = 0.0  # [s] mission time from which avoid_altitude holds, >= 0
 
     def __post_init__(self) -> None:
+        from .networks import checkpoint_set
+
+        value, paths = checkpoint_set(str(self.checkpoint))
+        object.__setattr__(self, "checkpoint", value)
+        object.__setattr__(self, "_paths", paths)
         try:
             samples = int(self.samples.strip()) if isinstance(self.samples, str) else self.samples
             plan_s = float(self.plan_s)
@@ -148,6 +156,16 @@ class AttentionConfig:
             raise ValueError(f"attention.threads = {raw!r} is invalid: expected 0 (leave torch's setting alone) or "
                              f"an integer from 1 to {cpus} (the CPUs this process may run on)")
         object.__setattr__(self, "threads", threads)
+
+
+    def members(self) -> tuple[tuple[str, dict[str, str]], ...]:
+        """A method over several networks: per network, in order, its name and the settings that fly it alone
+        (``{"checkpoint": PATH}``); () for one network."""
+        paths = self._paths
+        if len(paths) < 2:
+            return ()
+        named = self.checkpoint.split("+") if "+" in self.checkpoint else [Path(p).name for p in paths]
+        return tuple((name, {"checkpoint": path}) for name, path in zip(named, paths))
 
 
 class _Imagined:
@@ -222,16 +240,21 @@ class AttentionPlanner(GraphPlanner):
         if net is None:
             from .checkpoint import SHIPPED_CHECKPOINT
 
-            path = Path(config.checkpoint) if config.checkpoint else SHIPPED_CHECKPOINT
-            self.net, self.meta = load_checkpoint(path, device=self.device)
+            paths = [Path(p) for p in config._paths] or [SHIPPED_CHECKPOINT]
+            loaded = [load_checkpoint(path, device=self.device) for path in paths]  # each refused by name
+            self.net, self.meta = loaded[0]
+            #: a method's networks (several checkpoints): the leaderboard flies each alone (AttentionConfig.members)
+            self.networks = [net for net, _ in loaded]
             self._source = config.checkpoint or "(shipped)"
-            self._sha256 = hashlib.sha256(path.read_bytes()).hexdigest()
+            self._sha256 = "+".join(hashlib.sha256(path.read_bytes()).hexdigest() for path in paths)
         else:
             self.net, self.meta, self._source, self._sha256 = net, {}, "(network in memory)", ""
+            self.networks = [net]
         self._checked_shape: tuple | None = None
 
     def fingerprint(self) -> dict[str, str]:
-        """The checkpoint's content hash: a results folder refuses rows of another network."""
+        """The checkpoint's content hash (a method's: each network's, in order, joined by ``+``): a results
+        folder refuses rows of another network, or of the same networks in another order."""
         return {"checkpoint_sha256": self._sha256} if self._sha256 else {}
 
     @classmethod
@@ -243,6 +266,11 @@ class AttentionPlanner(GraphPlanner):
         """Refuses (CheckpointError, one line) a checkpoint whose inputs differ from the task's."""
         from .checkpoint import check_feature_dims
 
+        if len(self.networks) > 1:
+            k = len(self.networks)
+            raise ValueError(f"attention.checkpoint = {self.settings.checkpoint} names {k} networks, a method: the "
+                             f"leaderboard flies it over its episodes (episode i: network i mod {k}); to fly one "
+                             "episode, name one checkpoint")
         # pe_dim is the task's; the node features are checked on the first observation (_check).
         check_feature_dims(self.net.cfg, self.net.cfg.node_dim, view.config.graph.pe_dim,
                            f"attention checkpoint {self._source}")

@@ -267,7 +267,10 @@ def test_a_planner_that_raises_stops_the_run_naming_the_episode_and_keeps_the_re
 
     monkeypatch.setitem(planners.REGISTRY, "boom", "lb_helpers:BoomPlanner")
     plan = tiny_plan(tasks=TASKS[:1], planners=["random", "boom"])
-    monkeypatch.setattr(BoomPlanner, "FAIL_SEED", plan.seeds[1])
+    from ipp_bench.planners.isolation import planner_seed
+
+    # a planner other than the suite's gets a keyed hash of the episode's seed
+    monkeypatch.setattr(BoomPlanner, "FAIL_SEED", planner_seed(plan.seeds[1], "lb_helpers:BoomPlanner"))
     out = tmp_path / "boom"
     with pytest.raises(lb.EpisodeFailed) as err:
         run_tiny(out, plan, command="ipp-bench leaderboard ...")

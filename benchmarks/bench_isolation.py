@@ -7,7 +7,8 @@ warm-up episode of each (the planner process's start and its imports are paid th
 once per planner). Per planner it prints:
 
 * the wall time per decision of whole episodes (episode wall time / decisions: the step, the belief update and the
-  exchange included) both ways, and the overhead;
+  exchange included) both ways, and the overhead: over all episodes, and the median and range of the overhead of
+  each repeat (its ``--episodes`` episodes both ways), the spread that the machine's load puts on the figure;
 * the CPU time per decision both ways (isolated: the world's process and the planner's together), which does not
   depend on the machine's load: the isolated side pays a second belief update (the planner's own) and the exchange;
 * the mean decision time as the episode loop measures it (isolated: the whole exchange), the planner's own think
@@ -88,11 +89,15 @@ def main() -> None:
             n = sum(r.decisions for r in inside)
             wall_in = sum(r.episode_wall_s for r in inside) / n
             wall_iso = sum(r.episode_wall_s for r in apart) / n
+            per_repeat = [100 * (sum(r.episode_wall_s for r in apart[j:j + args.episodes])
+                                 / sum(r.episode_wall_s for r in inside[j:j + args.episodes]) - 1)
+                          for j in range(0, len(inside), args.episodes)]
             dec_in = np.mean(np.concatenate([r.decision_times_s for r in inside]))
             dec_iso = np.mean(np.concatenate([r.decision_times_s for r in apart]))
             print(f"{spec}: {n} decisions; wall per decision in-process {1e3 * wall_in:.3f} ms, isolated "
                   f"{1e3 * wall_iso:.3f} ms, overhead {100 * (wall_iso / wall_in - 1):+.1f} % "
-                  f"({1e3 * (wall_iso - wall_in):+.3f} ms)")
+                  f"({1e3 * (wall_iso - wall_in):+.3f} ms); per repeat median {np.median(per_repeat):+.1f} %, "
+                  f"{min(per_repeat):+.1f} .. {max(per_repeat):+.1f} %")
             print(f"  {spec}: CPU per decision in-process {1e3 * cpu_in / n:.3f} ms, isolated (both processes) "
                   f"{1e3 * cpu_iso / n:.3f} ms, overhead {100 * (cpu_iso / cpu_in - 1):+.1f} %")
             print(f"  {spec}: decision time in-process {1e3 * dec_in:.3f} ms, isolated exchange {1e3 * dec_iso:.3f} ms "

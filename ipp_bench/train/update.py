@@ -62,7 +62,7 @@ def half_gradient(policy: Any, data: tuple) -> tuple[list[np.ndarray], float, np
     """A worker's half: load the weights of ``data``, and return the half's gradient (one array per
     parameter, in ``policy.parameters()`` order), its loss and its sums."""
     state, batch, n_total, coefs = data
-    policy.load_state_dict(state)
+    policy.load_state_dict({k: torch.from_numpy(v) for k, v in state.items()})
     policy.set_training_mode(True)
     policy.zero_grad(set_to_none=True)
     loss, sums = half_terms(policy, batch, n_total, *coefs)
@@ -115,7 +115,8 @@ def split_train(model: Any, remote_half: Any | None) -> None:
             first, second = _halves(data, advantages, n)
             state = None
             if remote_half is not None and len(second["actions"]):
-                state = {k: v.detach().cpu().clone() for k, v in policy.state_dict().items()}
+                # numpy arrays: pickled whole (torch tensors would cross as shared-memory files, which costs more)
+                state = {k: v.detach().cpu().numpy().copy() for k, v in policy.state_dict().items()}
                 remote_half(state, second, n, coefs)  # sent: the worker computes while this process does
             policy.optimizer.zero_grad()
             loss, sums = half_terms(policy, first, n, *coefs)

@@ -136,6 +136,9 @@ class Point:
     versus: dict[float, Estimate | None]
     front: frozenset[float]
     reads_truth: bool
+    #: the mean and the sum over its episodes of an episode's wall time [s] (the step, the updates, the decisions)
+    episode_wall_s: float = float("nan")
+    wall_s: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -171,9 +174,12 @@ def task_frontier(table: EpisodeTable, task: str, reference: str | None, sweeps:
         for p, on in zip(ranked, pareto_front([dt[p] for p in ranked], [means[p][t] for p in ranked])):
             if on:
                 front[p].add(t)
+    walls = {p: list(table.wall.get((task, p), {}).values()) for p in planners}
     points = tuple(Point(p, dt[p], means[p],
                          {t: (paired(table, task, p, ref, t, key) if ref and p != ref else None) for t in times},
-                         frozenset(front[p]), is_reference(p)) for p in planners)
+                         frozenset(front[p]), is_reference(p),
+                         float(np.mean(walls[p])) if walls[p] else float("nan"), float(np.sum(walls[p])))
+                   for p in planners)
     return Frontier(task, times, ref, points, tuple(flown))
 
 

@@ -38,8 +38,9 @@ def _setting(frontier: Frontier, planner: str) -> str:
 def frontier_table(frontier: Frontier, published: frozenset[str] = frozenset()) -> str:
     """One row per planner: setting, decision time, mean [paired difference from the reference] per report time,
     and the report times at which it is on the Pareto front."""
-    header = ["Method", "Setting", "Decision time [ms]", *(f"{t:g} s" for t in frontier.times), "Pareto front"]
-    lines = ["| " + " | ".join(header) + " |", "|:--|:--|" + "--:|" * (len(frontier.times) + 1) + ":--|"]
+    header = ["Method", "Setting", "Decision time [ms]", "Episode [s]", *(f"{t:g} s" for t in frontier.times),
+              "Pareto front"]
+    lines = ["| " + " | ".join(header) + " |", "|:--|:--|" + "--:|" * (len(frontier.times) + 2) + ":--|"]
     for p in sorted(frontier.points, key=lambda p: (p.reads_truth, p.decision_time_s)):
         cells = []
         for t in frontier.times:
@@ -51,9 +52,20 @@ def frontier_table(frontier: Frontier, published: frozenset[str] = frozenset()) 
             cells.append(f"{p.means[t]:.1f}%{mark}" + (f" ({versus})" if versus else ""))
         on = ", ".join(f"{t:g}" for t in frontier.times if t in p.front)
         lines.append("| " + " | ".join([method_label(p.planner, published), _setting(frontier, p.planner),
-                                        _milliseconds(p.decision_time_s), *cells,
+                                        _milliseconds(p.decision_time_s), _seconds(p.episode_wall_s), *cells,
                                         "–" if p.reads_truth else (f"{on} s" if on else "no")]) + " |")
+    swept = {s for g in frontier.sweeps for s in g.specs}
+    total = sum(p.wall_s for p in frontier.points if p.wall_s == p.wall_s)
+    sweep = sum(p.wall_s for p in frontier.points if p.planner in swept and p.wall_s == p.wall_s)
+    lines.append("\nEpisode: the mean wall time of one episode (its steps, belief updates and decisions; one "
+                 f"process). This task's episodes took {total / 60:.1f} min of wall time in all, summed over "
+                 f"episodes and planners, {sweep / 60:.1f} min of it the sweeps' points (with `--workers` W, about "
+                 "1/W of it passes).")
     return "\n".join(lines) + "\n"
+
+
+def _seconds(x: float) -> str:
+    return "–" if x != x else (f"{x:.3g}" if x < 100 else f"{x:.0f}")
 
 
 def _ratio(a: float, b: float) -> str:

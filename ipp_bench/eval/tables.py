@@ -51,6 +51,8 @@ class EpisodeTable:
         self.planners = list(planners) if planners else list(dict.fromkeys(r["planner"] for r in rows))
         self.values: dict[tuple[str, str, float, str], list[float]] = defaultdict(list)
         self.runtime: dict[tuple[str, str], dict[int, float]] = defaultdict(dict)
+        #: each episode's wall time [s] (the step, the belief updates and the decisions)
+        self.wall: dict[tuple[str, str], dict[int, float]] = defaultdict(dict)
         self.times: dict[str, list[float]] = defaultdict(list)
         self.seeds: dict[tuple[str, str], set[int]] = defaultdict(set)
         self._by_seed: dict[tuple[str, str, float, str], dict[int, float]] = defaultdict(dict)
@@ -60,6 +62,7 @@ class EpisodeTable:
                 self.values[(task, planner, t, key)].append(float(r[key]))
                 self._by_seed[(task, planner, t, key)][int(r["seed"])] = float(r[key])
             self.runtime[(task, planner)][int(r["seed"])] = float(r["decision_time_mean_s"])
+            self.wall[(task, planner)][int(r["seed"])] = float(r.get("episode_wall_s", "nan") or "nan")
             self.seeds[(task, planner)].add(int(r["seed"]))
             if t not in self.times[task]:
                 self.times[task].append(t)

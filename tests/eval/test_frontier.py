@@ -51,7 +51,7 @@ def rows_of(values, runtimes, times=TIMES):
         for t in times:
             for seed, v in enumerate(by_time[t]):
                 row = {"task": TASK, "planner": planner, "seed": seed, "time_s": t,
-                       "decision_time_mean_s": runtimes[planner]}
+                       "decision_time_mean_s": runtimes[planner], "episode_wall_s": 100 * runtimes[planner] + seed}
                 row.update({k: 0.0 for k in REPORT_KEYS})
                 row["uncertainty_reduction_pct"] = v
                 rows.append(row)
@@ -120,3 +120,19 @@ def test_the_share_of_the_oracles_headroom_and_the_front_in_the_table():
     text = frontier_section(table, [frontier], {}, {TASK: list(rows.values())}, {})
     assert "| 100 | `attention` |" in text and "| 10% |" in text
     assert "| `attention` | – | 0.100 |" in text and "◆" in text
+
+
+def test_the_wall_time_of_each_point_and_of_the_task():
+    """A point's episode wall time is the mean over its episodes (one per seed, not per report time); the line
+    under the table sums every episode of the task and, apart, the sweeps' points."""
+    table, frontier = synthetic(n=4)
+    mean_seed = (0 + 1 + 2 + 3) / 4
+    assert frontier.point("greedy").episode_wall_s == pytest.approx(100 * 5e-3 + mean_seed)
+    assert frontier.point("greedy").wall_s == pytest.approx(4 * (100 * 5e-3 + mean_seed))
+    runtimes = {"attention": 1e-4, "greedy": 5e-3, "oracle": 6e-3, "mcts:simulations=8": 0.01,
+                "mcts:simulations=64": 0.073, "mcts:simulations=200": 0.25}
+    total = sum(4 * (100 * r + mean_seed) for r in runtimes.values())
+    sweep = sum(4 * (100 * runtimes[p] + mean_seed) for p in runtimes if p.startswith("mcts"))
+    text = frontier_section(table, [frontier], {}, {}, {})
+    assert f"took {total / 60:.1f} min of wall time in all" in text
+    assert f"{sweep / 60:.1f} min of it the sweeps'" in text

@@ -94,6 +94,32 @@ def test_the_shipped_recipe_has_every_stage_of_the_shipped_checkpoint():
         assert cfg.reward == "metric" and cfg.invariant and cfg.warm_start == "none"
 
 
+def test_the_method_recipe_has_three_stages_that_build_on_each_other_and_is_what_seed_0_ran():
+    """attention_v7: at most three stages, each from the one before, one set of settings (no stage sets its own
+    PPO or network settings), every training task in the warm start; the shipped seed 0's recorded commands
+    are the recipe's with --seed 0."""
+    recipe = load_recipe("attention_v7")
+    assert len(recipe.stages) <= 3
+    assert [s.start for s in recipe.stages] == ["", *(s.name for s in recipe.stages[:-1])]
+    runs = [cfg for _, cfg in plan(recipe, Path("out"))]
+    shared = ("learning_rate", "clip_range", "n_envs", "n_steps", "batch_size", "n_epochs", "embed_dim", "ff_dim",
+              "n_heads", "gae_lambda", "ent_coef", "vf_coef", "reward", "invariant", "seed", "val_task")
+    assert all(getattr(cfg, k) == getattr(runs[0], k) for cfg in runs for k in shared)
+    assert set(runs[0].tasks) == {f"ipp_bench/{t}" for t in ("Grid15Train-v1", "Grid20Train-v1", "Grid30Train-v1",
+                                                               "Hotspots15Train-v2", "Hotspots30Train-v2")}
+    shipped = json.loads((SHIPPED / "attention_v7_seed0.json").read_text())["meta"]
+    assert shipped["recipe"] == "attention_v7" and shipped["training_seed"] == 0
+    for stage_meta, (stage, cfg) in zip(shipped["stages"], plan(recipe, Path("runs/v7/seed0")), strict=True):
+        assert stage_meta["name"] == stage.name
+        assert shlex.split(stage_meta["command"]) == shlex.split(command_line(cfg)), stage.name
+
+
+def test_a_recipe_runs_with_another_seed_in_every_stage(capsys):
+    assert main(["--recipe", "attention_v7", "--dry-run", "--seed", "2", "--out", "runs/v7_2"]) == 0
+    commands = [shlex.split(line) for line in capsys.readouterr().out.splitlines() if line.startswith("ipp-bench")]
+    assert len(commands) == 3 and all(c[c.index("--seed") + 1] == "2" for c in commands)
+
+
 def test_dry_run_prints_every_stage_as_its_command(capsys):
     assert main(["--recipe", "attention_v6", "--dry-run", "--out", "runs/v6", "--threads", "1"]) == 0
     out = capsys.readouterr().out

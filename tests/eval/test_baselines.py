@@ -338,8 +338,8 @@ def test_a_committed_report_is_what_its_results_make(folder):
     pytest.importorskip("matplotlib")  # the report names its plots
     from ipp_bench.eval.machine import describe_machine
     from ipp_bench.eval.markdown_stats import aggregate_estimates
-    from ipp_bench.eval.plots import PROFILE_PNG, RUNTIME_PNG, curves_png
-    from ipp_bench.eval.report import markdown_report
+    from ipp_bench.eval.plots import PROFILE_PNG, RUNTIME_PNG, curves_png, frontier_png
+    from ipp_bench.eval.report import frontiers_of, markdown_report
     from ipp_bench.eval.tables import EpisodeTable
 
     meta = _run_json(folder)
@@ -352,7 +352,9 @@ def test_a_committed_report_is_what_its_results_make(folder):
     estimates = aggregate_estimates(table)
     plots = [curves_png(t) for t in table.tasks if table.times.get(t)] + [RUNTIME_PNG]
     machines = [m for m in [meta.get("machine"), *meta.get("other_machines", [])] if isinstance(m, dict)]
+    frontiers = frontiers_of(table, reference)  # a board with a sweep shows its plots in their own section
     text = markdown_report(table, command, bool(meta.get("quick")), plots, reference, (), None, power,
                            PROFILE_PNG if estimates[1] is not None else None, estimates,
-                           [describe_machine(m) for m in machines])
+                           [describe_machine(m) for m in machines], frontiers=frontiers,
+                           frontier_pngs={f.task: frontier_png(f.task) for f in frontiers})
     assert text == committed, f"baselines/{folder}/leaderboard.md is not what its results.csv makes: regenerate it"

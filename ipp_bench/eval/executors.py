@@ -7,8 +7,9 @@ numpy's BLAS on one thread (:func:`ipp_bench.eval.jobs.init_worker`), so an epis
 the same whichever backend or worker count runs it.
 
 - ``serial``: one job after another in this process.
-- ``process``: :class:`concurrent.futures.ProcessPoolExecutor` with the ``forkserver`` start
-  method (``spawn`` where there is none), never ``fork`` (a forked BLAS or Ray thread pool can hang).
+- ``process``: worker processes (:class:`concurrent.futures.ProcessPoolExecutor`) with the ``forkserver``
+  start method (``spawn`` where there is none), never ``fork`` (a forked BLAS or Ray thread pool can hang);
+  each worker is replaced by a fresh one after :data:`EPISODES_PER_WORKER` episodes.
   Workers ignore Ctrl-C (the run's process handles it and stops them) and exit by themselves when
   the run's process dies (SIGTERM, SIGKILL), so no worker is left idle.
 - ``ray``: one Ray task per job, :class:`~ipp_bench.eval.ray_executor.RayExecutor`.
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -54,36 +56,73 @@ class SerialExecutor:
         return "serial (this process)"
 
 
+#: episodes a worker process flies before a fresh process replaces it. A worker's memory is what its largest
+#: episodes left behind (the allocator keeps freed blocks; caches of roadmap legs and search trees grow with
+#: the maps seen): over a board's thousands of episodes of many planners it grew to 9 GB. A fresh worker
+#: costs its start (imports, the first episode's compilation and caches: 1-2 s), a share of a percent of
+#: 20 episodes.
+EPISODES_PER_WORKER = 20
+
+
+class _Slot:
+    """One worker process (a ProcessPoolExecutor of one), replaced after :data:`EPISODES_PER_WORKER` jobs."""
+
+    def __init__(self, context, initargs):
+        self.pool = ProcessPoolExecutor(max_workers=1, mp_context=context, initializer=init_worker,
+                                        initargs=initargs)
+        self.ran = 0
+
+
 class ProcessExecutor:
-    """A pool of ``workers`` processes (``forkserver``, else ``spawn``); one BLAS thread each."""
+    """``workers`` worker processes (``forkserver``, else ``spawn``); one BLAS thread each; each replaced by a
+    fresh process after ``episodes_per_worker`` jobs (:data:`EPISODES_PER_WORKER`), so that no worker's memory
+    grows with the length of a run. A job goes to a worker only when that worker is free."""
 
     name = "process"
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, episodes_per_worker: int = EPISODES_PER_WORKER):
         check_workers(workers)
+        if not (isinstance(episodes_per_worker, int) and episodes_per_worker >= 1):
+            raise ValueError(f"episodes_per_worker is {episodes_per_worker!r}: valid is an integer >= 1")
         self.workers = workers
+        self.episodes_per_worker = episodes_per_worker
         methods = multiprocessing.get_all_start_methods()
         self.start_method = "forkserver" if "forkserver" in methods else "spawn"
-        self._pool: ProcessPoolExecutor | None = None
+        self._slots: list[_Slot | None] = [None] * workers
+        self._retired: list[ProcessPoolExecutor] = []
+
+    def _free_slot(self, busy: set[int]) -> int:
+        """A slot with no job running, its worker started or replaced as needed."""
+        i = next(k for k in range(self.workers) if k not in busy)
+        slot = self._slots[i]
+        if slot is not None and slot.ran >= self.episodes_per_worker:
+            slot.pool.shutdown(wait=False)  # its worker is idle: it exits; close() joins it
+            self._retired.append(slot.pool)
+            slot = None
+        if slot is None:
+            slot = self._slots[i] = _Slot(multiprocessing.get_context(self.start_method), (os.getpid(),))
+        return i
 
     def imap_unordered(self, fn: Callable[[J], R], jobs: Sequence[J]) -> Iterator[tuple[J, R]]:
-        pending: dict = {}
-        # Ctrl-C or SIGTERM while the pool forks its workers would land between a worker's start
-        # and the pool recording it: that worker, never stopped, then reads its start-up data
-        # after the pool removed its queues, and prints a traceback. The signal waits until
-        # every job is submitted (and every worker recorded); it is raised right after.
-        with signals_deferred():
-            if self._pool is None:
-                self._pool = ProcessPoolExecutor(max_workers=self.workers,
-                                                 mp_context=multiprocessing.get_context(self.start_method),
-                                                 initializer=init_worker, initargs=(os.getpid(),))
-            for job in jobs:
-                pending[self._pool.submit(fn, job)] = job
+        queue = deque(jobs)
+        pending: dict = {}  # future -> (job, slot)
         try:
-            while pending:
+            while queue or pending:
+                # Ctrl-C or SIGTERM while a pool forks its worker would land between the worker's start
+                # and the pool recording it: that worker, never stopped, then reads its start-up data
+                # after the pool removed its queues, and prints a traceback. The signal waits until the
+                # submissions (and every worker started by them) are recorded; it is raised right after.
+                with signals_deferred():
+                    busy = {slot for _, slot in pending.values()}
+                    while queue and len(busy) < self.workers:
+                        i = self._free_slot(busy)
+                        job = queue.popleft()
+                        pending[self._slots[i].pool.submit(fn, job)] = (job, i)
+                        self._slots[i].ran += 1
+                        busy.add(i)
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
-                    job = pending.pop(fut)
+                    job, _ = pending.pop(fut)
                     try:
                         result = fut.result()
                     except BrokenProcessPool:
@@ -96,17 +135,20 @@ class ProcessExecutor:
                 fut.cancel()
 
     def close(self, abort: bool = False) -> None:
-        """Shut the pool down; ``abort``: stop the workers now instead of letting running jobs end."""
-        if self._pool is None:
-            return
+        """Shut the workers down; ``abort``: stop them now instead of letting running jobs end."""
+        pools = [*self._retired, *(s.pool for s in self._slots if s is not None)]
+        self._slots = [None] * self.workers
+        self._retired = []
         if abort:
-            for proc in list(getattr(self._pool, "_processes", {}).values()):  # no public way to stop them
-                proc.terminate()
-        self._pool.shutdown(wait=True, cancel_futures=True)
-        self._pool = None
+            for pool in pools:
+                for proc in list((getattr(pool, "_processes", None) or {}).values()):  # no public way to stop them
+                    proc.terminate()
+        for pool in pools:
+            pool.shutdown(wait=True, cancel_futures=True)
 
     def describe(self) -> str:
-        return f"process pool, {self.workers} workers ({self.start_method})"
+        return (f"process pool, {self.workers} workers ({self.start_method}), "
+                f"each replaced after {self.episodes_per_worker} episodes")
 
 
 def check_executor_args(backend: str, workers: int | None = None, address: str | None = None) -> None:

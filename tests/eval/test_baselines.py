@@ -184,7 +184,7 @@ def _flight_spec(folder: str, label: str) -> str:
     """The spec that flies ``label``'s rows of ``folder`` (checkpoint paths made absolute)."""
     spec = REFLIGHT_SPECS.get(folder, {}).get(label, label)
     name, overrides = parse_spec(spec)
-    if "checkpoint" in overrides:
+    if "checkpoint" in overrides and (REPO / overrides["checkpoint"]).is_file():  # a path, not a shipped name
         overrides["checkpoint"] = str(REPO / overrides["checkpoint"])
     return name + (":" + ",".join(f"{k}={v}" for k, v in overrides.items()) if overrides else "")
 
@@ -332,15 +332,13 @@ def test_the_comparison_catches_a_perturbed_metric():
 
 @pytest.mark.parametrize("folder", [f if f == "quick" else pytest.param(f, marks=pytest.mark.slow)
                                     for f in FOLDERS if f not in NOT_RERUNNABLE])
-def test_a_committed_report_is_what_its_results_make(folder):
-    """leaderboard.md is a pure function of results.csv (and the command and machine it names): made
-    again from the committed rows it is the committed file, byte for byte."""
+def test_a_committed_report_is_what_its_results_make(folder, tmp_path):
+    """leaderboard.md is a pure function of results.csv (with the published board's rows it was paired with,
+    the command and machine it names, and run.json's record): made again from the committed rows by the
+    leaderboard's own report writer, it is the committed file, byte for byte."""
     pytest.importorskip("matplotlib")  # the report names its plots
     from ipp_bench.eval.machine import describe_machine
-    from ipp_bench.eval.markdown_stats import aggregate_estimates
-    from ipp_bench.eval.plots import PROFILE_PNG, RUNTIME_PNG, curves_png, frontier_png
-    from ipp_bench.eval.report import frontiers_of, markdown_report
-    from ipp_bench.eval.tables import EpisodeTable
+    from ipp_bench.eval.report import write_report
 
     meta = _run_json(folder)
     committed = (BASELINES / folder / "leaderboard.md").read_text()
@@ -348,13 +346,20 @@ def test_a_committed_report_is_what_its_results_make(folder):
     words = shlex.split(command)
     reference = words[words.index("--reference") + 1] if "--reference" in words else "greedy"
     power = float(words[words.index("--power") + 1]) if "--power" in words else 3.0
-    table = EpisodeTable(read_results(BASELINES / folder / RESULTS_CSV), meta["tasks"], meta["planners"])
-    estimates = aggregate_estimates(table)
-    plots = [curves_png(t) for t in table.tasks if table.times.get(t)] + [RUNTIME_PNG]
+    against = meta.get("against")  # a board paired with a published one: its rows join the report
+    published = json.loads((REPO / against["folder"] / RUN_JSON).read_text()) if against else {}
+    methods = {**((published.get("fingerprint") or {}).get("methods") or {}),
+               **(meta["fingerprint"].get("methods") or {})}
     machines = [m for m in [meta.get("machine"), *meta.get("other_machines", [])] if isinstance(m, dict)]
-    frontiers = frontiers_of(table, reference)  # a board with a sweep shows its plots in their own section
-    text = markdown_report(table, command, bool(meta.get("quick")), plots, reference, (), None, power,
-                           PROFILE_PNG if estimates[1] is not None else None, estimates,
-                           [describe_machine(m) for m in machines], frontiers=frontiers,
-                           frontier_pngs={f.task: frontier_png(f.task) for f in frontiers})
+    out = tmp_path / folder
+    out.mkdir(parents=True)
+    write_report(BASELINES / folder / RESULTS_CSV, out, tasks=meta["tasks"], planners=meta["planners"],
+                 command=command, quick=bool(meta.get("quick")), reference=reference, power=power,
+                 published_csv=BASELINES / folder / "published_results.csv" if against else None,
+                 published_from=against["folder"] if against else None,
+                 published_unverified=bool(against and against.get("unverified")),
+                 made_on=[describe_machine(m) for m in machines],
+                 isolated=[*meta.get("isolated_planners", []), *published.get("isolated_planners", [])],
+                 methods=methods, seeds=meta["seeds"])
+    text = (out / "leaderboard.md").read_text()
     assert text == committed, f"baselines/{folder}/leaderboard.md is not what its results.csv makes: regenerate it"

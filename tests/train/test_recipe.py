@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -94,10 +95,10 @@ def test_the_shipped_recipe_has_every_stage_of_the_shipped_checkpoint():
         assert cfg.reward == "metric" and cfg.invariant and cfg.warm_start == "none"
 
 
-def test_the_method_recipe_has_three_stages_that_build_on_each_other_and_is_what_seed_0_ran():
+def test_the_method_recipe_has_three_stages_that_build_on_each_other_and_is_what_the_seeds_ran():
     """attention_v7: at most three stages, each from the one before, one set of settings (no stage sets its own
-    PPO or network settings), every training task in the warm start; the shipped seed 0's recorded commands
-    are the recipe's with --seed 0."""
+    PPO or network settings), every training task in the warm start; each shipped seed's recorded commands
+    are the recipe's with --seed S, and the method ships three training seeds, 0, 1 and 2."""
     recipe = load_recipe("attention_v7")
     assert len(recipe.stages) <= 3
     assert [s.start for s in recipe.stages] == ["", *(s.name for s in recipe.stages[:-1])]
@@ -107,11 +108,16 @@ def test_the_method_recipe_has_three_stages_that_build_on_each_other_and_is_what
     assert all(getattr(cfg, k) == getattr(runs[0], k) for cfg in runs for k in shared)
     assert set(runs[0].tasks) == {f"ipp_bench/{t}" for t in ("Grid15Train-v1", "Grid20Train-v1", "Grid30Train-v1",
                                                                "Hotspots15Train-v2", "Hotspots30Train-v2")}
-    shipped = json.loads((SHIPPED / "attention_v7_seed0.json").read_text())["meta"]
-    assert shipped["recipe"] == "attention_v7" and shipped["training_seed"] == 0
-    for stage_meta, (stage, cfg) in zip(shipped["stages"], plan(recipe, Path("runs/v7/seed0")), strict=True):
-        assert stage_meta["name"] == stage.name
-        assert shlex.split(stage_meta["command"]) == shlex.split(command_line(cfg)), stage.name
+    assert sorted(p.name for p in SHIPPED.glob("attention_v7_seed*.pt")) == [
+        f"attention_v7_seed{s}.pt" for s in (0, 1, 2)]
+    for seed in (0, 1, 2):
+        shipped = json.loads((SHIPPED / f"attention_v7_seed{seed}.json").read_text())["meta"]
+        assert shipped["recipe"] == "attention_v7" and shipped["training_seed"] == seed
+        out = Path(f"runs/v7/seed{seed}")
+        for stage_meta, (stage, cfg) in zip(shipped["stages"], plan(recipe, out), strict=True):
+            assert stage_meta["name"] == stage.name
+            assert shlex.split(stage_meta["command"]) == shlex.split(command_line(replace(cfg, seed=seed))), (
+                seed, stage.name)
 
 
 def test_a_recipe_runs_with_another_seed_in_every_stage(capsys):

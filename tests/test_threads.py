@@ -3,6 +3,10 @@ CPU quota, read from cgroup v2 ``cpu.max`` or v1 ``cpu.cfs_quota_us`` / ``cpu.cf
 
 from __future__ import annotations
 
+import platform
+import subprocess
+import sys
+
 import pytest
 
 from ipp_bench.core import _threads
@@ -49,3 +53,27 @@ def test_the_training_s_workers_and_the_leaderboard_count_the_same_cpus(tmp_path
     monkeypatch.setattr(_threads, "CGROUP_ROOT", str(tmp_path))
     monkeypatch.setattr(_threads.os, "sched_getaffinity", lambda pid: set(range(16)))
     assert worker_cpus() == _threads.available_cpus() == 3
+
+
+_FREED_HEAP = """
+import sys
+from ipp_bench.core._threads import give_back_freed_memory, resident_bytes
+
+chunks = [bytes(2000) + bytes([i % 251]) for i in range(200_000)]  # 400 MB of small blocks on the heap
+keep = bytes(2000) + b"x"  # allocated after them: the heap's top stays in use, free() cannot shrink it
+del chunks
+before = resident_bytes()
+assert give_back_freed_memory(above_bytes=1 << 50) is False  # below the threshold: nothing done
+untouched = resident_bytes()
+trimmed = give_back_freed_memory(above_bytes=0)
+print(before, untouched, resident_bytes(), trimmed)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc",
+                    reason="malloc_trim is glibc's")
+def test_freed_heap_goes_back_to_the_os_only_above_the_threshold():
+    out = subprocess.run([sys.executable, "-c", _FREED_HEAP], capture_output=True, text=True, timeout=60, check=True)
+    before, untouched, after, trimmed = out.stdout.split()
+    assert int(untouched) > int(before) - 50e6  # the freed 400 MB still held
+    assert trimmed == "True" and int(after) < int(before) - 300e6, out.stdout

@@ -7,7 +7,8 @@ process (parallelism comes from running episodes in parallel). ``IPP_BENCH_BLAS_
 overrides it; torch's own thread pool is left alone.
 
 :func:`keep_freed_memory` (used by ``ipp-bench train``) stops glibc from unmapping large freed
-blocks, which made every large tensor of a training step page-fault afresh.
+blocks, which made every large tensor of a training step page-fault afresh;
+:func:`give_back_freed_memory` (used by the leaderboard's workers between episodes) does the opposite.
 """
 
 from __future__ import annotations
@@ -103,3 +104,33 @@ def keep_freed_memory() -> bool:
     except (OSError, AttributeError):  # not glibc (macOS, Windows, musl without mallopt)
         return False
     return bool(mallopt(_M_MMAP_THRESHOLD, _HEAP_RETAIN_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, _HEAP_RETAIN_BYTES))
+
+
+def resident_bytes() -> int | None:
+    """This process's resident memory (bytes), from ``/proc/self/statm``; None where there is none."""
+    try:
+        return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def give_back_freed_memory(above_bytes: int) -> bool:
+    """Where this process holds more than ``above_bytes``: collect its reference cycles and have glibc return
+    the freed heap to the OS (``malloc_trim``). Without it a process holds on to its largest episode's heap:
+    one MCTS episode at 600 simulations on a 30 x 30 map peaks at 4.6 GB and the process keeps 4.3 GB
+    after it; 0.4 GB after this. Returns whether it trimmed (False where the C library is not glibc or the
+    process holds no more than ``above_bytes``).
+    """
+    held = resident_bytes()
+    if held is None or held <= above_bytes:
+        return False
+    import ctypes
+    import ctypes.util
+    import gc
+
+    gc.collect()
+    try:
+        trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+    except (OSError, AttributeError):  # not glibc
+        return False
+    return bool(trim(0))

@@ -27,7 +27,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-from ..core._threads import available_cpus
+from ..core._threads import available_cpus, give_back_freed_memory
 from .jobs import WORKER_DIED, J, JobFailed, R, check_workers, failure_reason, init_worker, signals_deferred
 from .ray_executor import RayExecutor, import_ray
 
@@ -62,6 +62,18 @@ class SerialExecutor:
 #: costs its start (imports, the first episode's compilation and caches: 1-2 s), a share of a percent of
 #: 20 episodes.
 EPISODES_PER_WORKER = 20
+#: after an episode, a worker holding more than this collects its garbage and returns its freed heap to the
+#: OS (:func:`~ipp_bench.core._threads.give_back_freed_memory`), so that it holds what its next episode needs
+#: rather than what its largest one took; below it, a worker skips that (milliseconds an episode)
+GIVE_BACK_ABOVE_BYTES = 1 << 30
+
+
+def _run_then_give_back(fn: Callable[[J], R], job: J) -> R:
+    """In a worker: ``fn(job)``, then the freed memory back to the OS where the worker holds much."""
+    try:
+        return fn(job)
+    finally:
+        give_back_freed_memory(GIVE_BACK_ABOVE_BYTES)
 
 
 class _Slot:
@@ -117,7 +129,7 @@ class ProcessExecutor:
                     while queue and len(busy) < self.workers:
                         i = self._free_slot(busy)
                         job = queue.popleft()
-                        pending[self._slots[i].pool.submit(fn, job)] = (job, i)
+                        pending[self._slots[i].pool.submit(_run_then_give_back, fn, job)] = (job, i)
                         self._slots[i].ran += 1
                         busy.add(i)
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)

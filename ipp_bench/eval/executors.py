@@ -56,12 +56,11 @@ class SerialExecutor:
         return "serial (this process)"
 
 
-#: episodes a worker process flies before a fresh process replaces it. A worker's memory is what its largest
-#: episodes left behind (the allocator keeps freed blocks; caches of roadmap legs and search trees grow with
-#: the maps seen): over a board's thousands of episodes of many planners it grew to 9 GB. A fresh worker
-#: costs its start (imports, the first episode's compilation and caches: 1-2 s), a share of a percent of
-#: 20 episodes.
-EPISODES_PER_WORKER = 20
+#: episodes a worker process flies before a fresh process replaces it: a bound on what grows with the maps and
+#: planners a worker has flown (caches of roadmap legs; the heap a worker cannot give back). A fresh worker
+#: costs its start (imports, loading the compiled search kernels: 2-4 s), so the quick leaderboard (about 50
+#: episodes a worker) replaces none.
+EPISODES_PER_WORKER = 100
 #: after an episode, a worker holding more than this collects its garbage and returns its freed heap to the
 #: OS (:func:`~ipp_bench.core._threads.give_back_freed_memory`), so that it holds what its next episode needs
 #: rather than what its largest one took; below it, a worker skips that (milliseconds an episode)

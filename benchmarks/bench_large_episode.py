@@ -18,13 +18,12 @@ import time
 
 import numpy as np
 
-from ipp_bench.core._threads import limit_blas_threads
+from ipp_bench.core._threads import limit_blas_threads, resident_bytes
 
 
 def rss_mb() -> float:
     """[MB] the process's resident memory now (Linux /proc)."""
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+    return resident_bytes() / 1e6
 
 
 def main() -> None:

@@ -94,14 +94,8 @@ def keep_freed_memory() -> bool:
     and without is in ``benchmarks/RESULTS.md``, "Training throughput"). The process then holds on to
     its peak heap. Returns False, changing nothing, where the C library is not glibc.
     """
-    import ctypes
-    import ctypes.util
-
-    name = ctypes.util.find_library("c")
-    try:
-        libc = ctypes.CDLL(name or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # not glibc (macOS, Windows, musl without mallopt)
+    mallopt = _glibc("mallopt")
+    if mallopt is None:
         return False
     return bool(mallopt(_M_MMAP_THRESHOLD, _HEAP_RETAIN_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, _HEAP_RETAIN_BYTES))
 
@@ -124,13 +118,20 @@ def give_back_freed_memory(above_bytes: int) -> bool:
     held = resident_bytes()
     if held is None or held <= above_bytes:
         return False
-    import ctypes
-    import ctypes.util
     import gc
 
     gc.collect()
+    trim = _glibc("malloc_trim")
+    return trim is not None and bool(trim(0))
+
+
+def _glibc(function: str):
+    """The C library's ``function`` (a ctypes function), or None where the C library is not glibc (macOS,
+    Windows, musl without it)."""
+    import ctypes
+    import ctypes.util
+
     try:
-        trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-    except (OSError, AttributeError):  # not glibc
-        return False
-    return bool(trim(0))
+        return getattr(ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6"), function)
+    except (OSError, AttributeError):
+        return None

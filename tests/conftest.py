@@ -2,6 +2,12 @@ import os
 import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+# pytest-xdist's workers share the CPUs (2 on the reference machine): torch's OpenMP pool and Mesa's llvmpipe
+# rasteriser would start a thread per CPU in every process, and the surplus threads' hand-over makes the default
+# run 15 % slower (benchmarks/RESULTS.md). One thread each, here and in the commands the tests start; a test or
+# a planner that sets its own count (torch.set_num_threads) still does.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("LP_NUM_THREADS", "1")
 
 import numpy as np
 import pytest

@@ -132,8 +132,9 @@ def test_the_committed_folders_are_found():
     assert all((BASELINES / f / RESULTS_CSV).is_file() for f in FOLDERS), FOLDERS
 
 
-#: folders the default run reruns (the main job's and the newest benchmark's); the others with -m slow
-DEFAULT_RUN = {"quick", "v2"}
+#: folders the default run reruns (the main job's; the published boards' cheap episodes are flown again below by
+#: default); the others with -m slow
+DEFAULT_RUN = {"quick"}
 
 
 @pytest.mark.parametrize("folder", [f if f in DEFAULT_RUN else pytest.param(f, marks=pytest.mark.slow)

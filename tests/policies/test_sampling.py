@@ -170,12 +170,12 @@ def test_a_sampling_teacher_labels_dagger_states_with_the_actions_it_flies_alone
     from ipp_bench.policies.network import NetConfig
     from ipp_bench.train.warmstart import BCDataset, collect_episodes, make_expert
 
-    spec, seed = "attention:samples=2,plan_s=15", 3
+    spec, seed, short = "attention:samples=2,plan_s=15", 3, {"budget_s": 60.0, "report_times": (60.0,)}
     alone = []
-    fly_episode(gym.make(TASK).unwrapped, spec, seed, on_decision=lambda d: alone.append(int(d.action)))
+    fly_episode(gym.make(TASK, **short).unwrapped, spec, seed, on_decision=lambda d: alone.append(int(d.action)))
     data = BCDataset()
     cfg = NetConfig(node_dim=6, invariant=True)
-    student_env = gain_feature_wrapper(gym.make(TASK), invariant=True)  # the training env's six features
+    student_env = gain_feature_wrapper(gym.make(TASK, **short), invariant=True)  # the training env's six features
     collect_episodes(student_env, make_expert(spec), None, 1, 1.0, data, 0.99, np.random.default_rng(0), seed,
                      torch.device("cpu"), net_config=cfg)
     assert len(alone) > 5 and len(data) == len(alone)

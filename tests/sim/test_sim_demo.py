@@ -239,7 +239,8 @@ def test_a_full_disk_is_exit_1_and_leaves_the_old_video(small_disk):
 
 
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize("sig, status", [("SIGINT", 130), ("SIGTERM", 143), ("SIGKILL", -9)])
+@pytest.mark.parametrize("sig, status", [pytest.param("SIGINT", 130, marks=pytest.mark.slow), ("SIGTERM", 143),
+                                         pytest.param("SIGKILL", -9, marks=pytest.mark.slow)])
 def test_a_signal_during_the_video_leaves_the_old_one(sig, status, tmp_path):
     import signal
     import time

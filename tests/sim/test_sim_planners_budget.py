@@ -22,19 +22,33 @@ MUJOCO_TASKS = sorted(t for t, s in envs.TASKS.items()
 TEAM_TASKS = sorted(t for t, s in envs.TASKS.items() if s.entry_point.startswith("ipp_bench.sim") and is_team_task(t))
 # cheap settings: the budget's end, not the quality of the look-ahead, is under test
 CHEAP = {"mcts": "mcts:simulations=8", "cmaes": "cmaes:max_evals=24"}
+# 12 s: the budget of the case above; 17 s, a second end, with -m slow
+BUDGETS = [12.0, pytest.param(17.0, marks=pytest.mark.slow)]
+
+
+class _Envs(dict):
+    """(task, budget) -> one env per module, made on first use by ``make(task, budget)``."""
+
+    def __init__(self, make):
+        super().__init__()
+        self.make = make
+
+    def __missing__(self, key):
+        task, budget = key
+        self[key] = self.make(task, budget_s=budget, report_times=[budget], image_size=48)
+        return self[key]
 
 
 @pytest.fixture(scope="module")
 def envs_by_task_and_budget():
-    made = {(t, b): gym.make(t, budget_s=b, report_times=[b], image_size=48).unwrapped
-            for t in MUJOCO_TASKS for b in (12.0, 17.0)}
+    made = _Envs(lambda task, **kw: gym.make(task, **kw).unwrapped)
     yield made
     for e in made.values():
         e.close()
 
 
 @pytest.mark.parametrize("planner", [p for p in planner_names() if not is_team_planner(p)])
-@pytest.mark.parametrize("budget", [12.0, 17.0])
+@pytest.mark.parametrize("budget", BUDGETS)
 @pytest.mark.parametrize("task", [t if t.endswith("-v1") else pytest.param(t, marks=pytest.mark.slow)
                                   for t in MUJOCO_TASKS])  # v0's stop-and-go clock: with -m slow
 def test_every_planner_flies_to_the_end_of_the_budget(envs_by_task_and_budget, task, planner, budget):
@@ -53,15 +67,14 @@ def test_every_planner_flies_to_the_end_of_the_budget(envs_by_task_and_budget, t
 
 @pytest.fixture(scope="module")
 def team_envs_by_task_and_budget():
-    made = {(t, b): envs.make_env(t, budget_s=b, report_times=[b], image_size=48)
-            for t in TEAM_TASKS for b in (12.0, 17.0)}
+    made = _Envs(envs.make_env)
     yield made
     for e in made.values():
         e.close()
 
 
 @pytest.mark.parametrize("planner", planner_names())
-@pytest.mark.parametrize("budget", [12.0, 17.0])
+@pytest.mark.parametrize("budget", BUDGETS)
 @pytest.mark.parametrize("task", TEAM_TASKS)
 def test_every_planner_flies_every_drone_of_a_team_to_the_end_of_its_budget(team_envs_by_task_and_budget, task,
                                                                              planner, budget):
